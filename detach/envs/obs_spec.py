@@ -1,0 +1,63 @@
+"""Shapes of the observation TensorDict that envs publish and models consume.
+
+Every group is a 2-D tensor [N, D] (rsl-rl-lib's format). History groups travel flattened
+([N, T*d], time-major: step 0 is the oldest, step T-1 the newest) and models reshape them with
+the (T, d) given here. The sizes depend only on the character and the env config, never on the
+scene, so a policy trained on LH1 runs on LH2 and LH3.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+OBS_GROUPS: tuple[str, ...] = ("self", "env", "task", "critic", "amp")
+
+
+@dataclass(frozen=True)
+class ObsSpec:
+    self_steps: int
+    """T of the proprioception history (`self` group)."""
+    self_dim: int
+    """d of one proprioception frame (joint pos/vel, body pos/rot/vel in the heading frame)."""
+    env_steps: int
+    """T of the environment history (`env` group)."""
+    env_dim: int
+    """d of one environment frame (target, object features, flattened local height map)."""
+    height_map_cells: int
+    """The last `height_map_cells` entries of an env frame are the local height map (grid x grid)."""
+    num_skills: int
+    """Width of the `task` one-hot (order of `detach.config_schema.SKILLS`)."""
+    critic_dim: int
+    """Width of the privileged `critic` group."""
+    amp_steps: int
+    amp_dim: int
+    """The `amp` group is [N, amp_steps * amp_dim]."""
+    num_actions: int
+
+    def group_dims(self) -> dict[str, int]:
+        """Flat width of each TensorDict group."""
+        return {
+            "self": self.self_steps * self.self_dim,
+            "env": self.env_steps * self.env_dim,
+            "task": self.num_skills,
+            "critic": self.critic_dim,
+            "amp": self.amp_steps * self.amp_dim,
+        }
+
+    def to_dict(self) -> dict[str, int]:
+        return asdict(self)
+
+
+EXAMPLE_SPEC = ObsSpec(
+    self_steps=5,
+    self_dim=287,
+    env_steps=5,
+    env_dim=3 + 3 + 24 + 6 + 625,
+    height_map_cells=625,
+    num_skills=4,
+    critic_dim=287 + 661 + 4,
+    amp_steps=10,
+    amp_dim=105,
+    num_actions=32,
+)
+"""Representative humanoid sizes for tests of models on random tensors."""

@@ -1,0 +1,1 @@
+"""scene_builder package."""
