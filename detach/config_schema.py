@@ -141,12 +141,18 @@ class EnvEncoderCfg:
     kernel_sizes: tuple[int, ...] = (1, 3, 5)
     channels: int = 64
     attn_heads: int = 4
+    decoder_hidden: int = 256
+    """Hidden width of Decoder_env (per-frame MLP z_env[t] -> env frame)."""
 
 
 @dataclass(frozen=True)
 class SelfEncoderCfg:
     hidden: int = 64
     layers: int = 1
+    decoder_hidden: int = 256
+    """Hidden width of Decoder_self (per-frame MLP z_self[t] -> self frame)."""
+    predictor_hidden: int = 128
+    """Hidden width of the temporal predictor f_pred."""
 
 
 @dataclass(frozen=True)
@@ -166,6 +172,16 @@ class RegularizerCfg:
     lambda_r3: float = 0.001
     lambda_temporal: float = 0.001
     lambda_semantic: float = 0.01
+    lambda_decouple: float = 0.01
+    """Weight of R_decouple = ||Corr(z_env, z_self)||_F^2 in the joint stage."""
+    semantic_env_weight: float = 1.0
+    """alpha of R_semantic (env reconstruction term)."""
+    semantic_self_weight: float = 1.0
+    """beta of R_semantic (self reconstruction term)."""
+    r3_mode: Literal["distance", "cosine"] = "distance"
+    """R3 as printed in the paper (sum of squared distances between fusion outputs, which
+    pulls them together) or `cosine` (mean squared cosine similarity, which pushes them apart,
+    the stated intent "fusion diversity")."""
 
 
 @dataclass(frozen=True)
@@ -190,6 +206,9 @@ class ModelCfg:
     critic_objectives: tuple[str, ...] = ("task",)
     """Value heads of a multi-head critic (CML): one per reward objective."""
     init_noise_std: float = 1.0
+    obs_normalization: bool = True
+    """Running mean/std normalisation of the concatenated observation groups (rsl-rl's
+    EmpiricalNormalization) before the network; reconstruction targets are normalised too."""
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,99 @@
+"""Reading YAML files while remembering where every key came from.
+
+Error messages must name the file and line of the offending key, so loading returns, beside
+the plain data, a provenance map {key path: (file, line)}. Duplicate keys (which PyYAML
+silently overwrites) are errors here.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+KeyPath = tuple[str | int, ...]
+Provenance = dict[KeyPath, tuple[str, int]]
+
+
+class ConfigError(Exception):
+    """A user error in a configuration: one line naming file, line, key, expected and found."""
+
+    def __init__(self, message: str, file: str | None = None, line: int | None = None,
+                 path: KeyPath = ()) -> None:
+        where = ""
+        if file:
+            where = f"{file}:{line}: " if line else f"{file}: "
+        key = format_path(path)
+        super().__init__(f"{where}{key + ': ' if key else ''}{message}")
+        self.file, self.line, self.path = file, line, path
+
+
+def format_path(path: KeyPath) -> str:
+    """('scene', 2, 'pos3d') -> 'scene[2].pos3d'."""
+    out = ""
+    for part in path:
+        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+    return out
+
+
+def load_yaml(file: Path) -> tuple[Any, Provenance]:
+    """Parse one YAML file into plain data plus the line of every key and list item."""
+    name = str(file)
+    if not file.exists():
+        raise ConfigError("file not found", name)
+    if file.is_dir():
+        raise ConfigError("expected a YAML file, found a directory", name)
+    try:
+        text = file.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"cannot read file ({exc.__class__.__name__}: {exc})", name) from None
+    try:
+        node = yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise ConfigError(f"not valid YAML: {problem}", name,
+                          mark.line + 1 if mark else None) from None
+    if node is None:
+        raise ConfigError("file is empty (expected a mapping of config keys)", name)
+    prov: Provenance = {}
+    data = _convert(node, (), name, prov)
+    return data, prov
+
+
+def _convert(node: yaml.Node, path: KeyPath, file: str, prov: Provenance) -> Any:
+    prov[path] = (file, node.start_mark.line + 1)
+    if isinstance(node, yaml.MappingNode):
+        out: dict[Any, Any] = {}
+        for key_node, value_node in node.value:
+            key = _scalar(key_node, path, file)
+            if key == "<<":
+                raise ConfigError("YAML merge keys (<<) are not supported; use `extends`",
+                                  file, key_node.start_mark.line + 1, path)
+            if key in out:
+                raise ConfigError(f"duplicate key '{key}'", file,
+                                  key_node.start_mark.line + 1, path)
+            out[key] = _convert(value_node, path + (key,), file, prov)
+        return out
+    if isinstance(node, yaml.SequenceNode):
+        return [_convert(item, path + (i,), file, prov) for i, item in enumerate(node.value)]
+    return _scalar(node, path, file)
+
+
+def _scalar(node: yaml.Node, path: KeyPath, file: str) -> Any:
+    if not isinstance(node, yaml.ScalarNode):
+        raise ConfigError("mapping keys must be plain scalars", file,
+                          node.start_mark.line + 1, path)
+    try:
+        return yaml.SafeLoader(" ").construct_object(node, deep=True)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"bad value: {exc}", file, node.start_mark.line + 1, path) from None
+
+
+def parse_scalar(text: str) -> Any:
+    """Parse a command-line value as YAML (numbers, booleans, lists, null)."""
+    try:
+        return yaml.safe_load(text) if text.strip() else ""
+    except yaml.YAMLError:
+        return text

@@ -1,0 +1,230 @@
+"""The strict config loader, through its public API and the `detach-run` CLI."""
+
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from detach import cli
+from detach.config import ConfigError, dump, load_run_config, load_task, resolve
+
+ROOT = Path(__file__).resolve().parents[1]
+TASKS = sorted((ROOT / "configs" / "tasks").glob("*.yaml"))
+MODELS = sorted(p.stem for p in (ROOT / "configs" / "models").glob("*.yaml"))
+
+
+def test_every_task_and_model_is_shipped() -> None:
+    assert {p.stem for p in TASKS} == {"follow", "carry", "climb", "sit", "lh1", "lh2", "lh3"}
+    assert set(MODELS) == {"detach", "ablation_a1", "ablation_a2", "tokenhsi", "cml", "mlp"}
+
+
+@pytest.mark.parametrize("task", TASKS, ids=lambda p: p.stem)
+@pytest.mark.parametrize("model", MODELS)
+def test_shipped_configs_resolve_and_round_trip(task: Path, model: str, tmp_path: Path) -> None:
+    cfg = resolve(task, model, seed=3)
+    assert cfg.task_name == task.stem and cfg.model_name == model and cfg.seed == 3
+    dumped = tmp_path / "config.yaml"
+    dumped.write_text(dump(cfg))
+    assert load_run_config(dumped) == cfg
+    assert dump(load_run_config(dumped)) == dump(cfg)
+
+
+def test_lh1_numbers_from_the_paper() -> None:
+    cfg = resolve(ROOT / "configs/tasks/lh1.yaml", "detach")
+    t = cfg.task
+    box, chair, platform, wall_s, wall_n = t.scene
+    assert box.pos3d == (4.5, -4.0, 0.35) and not box.static
+    assert chair.pos3d == (0.0, 0.0, 1.46) and chair.z_rot_angle == -1.57
+    assert platform.pos3d == (0.0, 0.0, 0.5) and platform.size == (5.0, 3.0, 1.0)
+    assert {wall_s.pos3d, wall_n.pos3d} == {(6.0, -3.25, 1.5), (6.0, 3.25, 1.5)}
+    assert wall_s.size == (0.3, 5.0, 3.0)
+    assert t.trajectories[0] == ((10, 4), (10, 2), (7, 0), (5, 0), (4, -1))
+    assert t.target_positions == ((0.0, -1.8, 0.35),)
+    assert t.humanoid.init_pos2d == (10.0, 4.0)
+    assert t.plan == ("traj", "carry", "climb", "sit")
+    assert t.target_object == (0, 0, 0, 1)
+    assert t.sample_target_from == ("traj_0", "tarpos_0", "scene_0", "scene_1")
+    e, r = cfg.env, cfg.rewards
+    assert (e.episode_length, e.success_threshold, e.max_transition_steps) == (1200, 0.3, 60)
+    assert cfg.eval.max_transition_steps == 20
+    assert (e.termination_height, e.traj_fail_distance, e.amp_obs_steps) == (0.15, 4.0, 10)
+    assert (e.mixed_init_prob, e.height_map.grid, e.height_map.spacing) == (0.5, 25, 0.1)
+    g = e.trajectory
+    assert (g.num_samples, g.sample_dt, g.speed_min, g.speed_max) == (10, 0.5, 1.4, 1.5)
+    assert (g.accel_max, g.sharp_turn_prob, g.sharp_turn_angle) == (2.0, 0.02, 1.57)
+    assert (r.power_coeff, r.dyn_obj_speed_penalty_coeff, r.dyn_obj_speed_threshold) == (
+        0.0005, 1.0, 1.5)
+    assert r.decoupling_mask_strength == 0.3
+    assert round(1 / (cfg.sim.physics_dt * cfg.sim.substeps)) == 30
+
+
+def test_lh2_lh3_plans_from_the_paper() -> None:
+    lh2, lh3 = (load_task(ROOT / f"configs/tasks/{n}.yaml") for n in ("lh2", "lh3"))
+    assert lh2.plan == ("traj", "carry", "traj", "sit")
+    assert lh2.scene[8].category == "sofa" and lh2.scene[8].pos3d == (18.0, 17.0, 0.35)
+    assert lh2.trajectories[0][0] == (11.5, 0.0) and lh2.trajectories[0][-1] == (11.5, 8.0)
+    assert lh2.trajectories[1][0] == (14.0, 11.0) and lh2.trajectories[1][-1] == (18.0, 14.4)
+    assert lh3.plan == ("traj", "carry", "traj", "climb", "sit")
+    assert lh3.target_object == (0, 0, 0, 1, 2)
+    assert lh3.sample_target_from == ("traj_0", "tarpos_0", "traj_1", "scene_1", "scene_2")
+    assert len(lh3.scene) == 11 and lh3.scene[1].pos3d == (15.0, 18.2, 0.43)
+    assert len(lh3.trajectories[1]) == 12
+    assert lh3.trajectories[1][0] == (14.0, 11.0) and lh3.trajectories[1][-1] == (15.0, 16.0)
+
+
+def test_ablations_change_only_their_switch() -> None:
+    task = ROOT / "configs/tasks/lh3.yaml"
+    full = resolve(task, "detach").model
+    a1, a2 = resolve(task, "ablation_a1").model, resolve(task, "ablation_a2").model
+    assert a1 == type(full)(**{**full.__dict__, "use_env_encoder": False})
+    assert a2 == type(full)(**{**full.__dict__, "use_self_encoder": False})
+
+
+def test_overrides_set_add_and_index() -> None:
+    cfg = resolve(ROOT / "configs/tasks/lh1.yaml", "mlp", [
+        "env.character=puppet", "sim.num_envs=4", "scene[0].pos3d=[1, 2, 0.35]",
+        "scene.1.z_rot_angle=0.5", "+rewards.terms.traj/bonus=0.25",
+        "train.amp.disc_hidden=[64, 32]", "model.use_env_encoder=false"])
+    assert cfg.env.character == "puppet" and cfg.sim.num_envs == 4
+    assert cfg.task.scene[0].pos3d == (1.0, 2.0, 0.35) and cfg.task.scene[1].z_rot_angle == 0.5
+    assert cfg.rewards.terms["traj/bonus"] == 0.25
+    assert cfg.train.amp.disc_hidden == (64, 32) and cfg.model.use_env_encoder is False
+
+
+def test_dry_run_prints_config_and_folder(capsys: pytest.CaptureFixture[str]) -> None:
+    code = cli.main([str(ROOT / "configs/tasks/lh3.yaml"), "--model", "ablation_a1",
+                     "--dry-run", "--seed", "7", "sim.num_envs=8"])
+    out = capsys.readouterr().out
+    assert code == 0
+    assert "use_env_encoder: false" in out and "num_envs: 8" in out
+    folder = out.strip().splitlines()[-1]
+    assert folder.startswith("# run folder: runs/") and folder.endswith("-lh3-ablation_a1-s7")
+
+
+def test_help_documents_every_flag(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["--help"])
+    assert exc.value.code == 0
+    out = capsys.readouterr().out
+    for flag in ("--model", "--seed", "--device", "--out", "--dry-run", "key=value"):
+        assert flag in out
+
+
+GOOD_TASK = """\
+name: t
+scene:
+  - {name: box, category: Box, model_id: b, static: false, pos3d: [1, 0, 0.35]}
+  - {name: chair, category: chair, model_id: c, pos3d: [3, 0, 0.46]}
+trajectories:
+  0: [[0, 0], [1, 1]]
+target_positions: [[2, 2, 0.35]]
+plan: [traj, carry, sit]
+target_object: [0, 0, 1]
+sample_target_from: [traj_0, tarpos_0, scene_1]
+"""
+
+# (name, {file: text}, extra CLI overrides, expected fragment of the one-line error)
+BROKEN: list[tuple[str, dict[str, str], list[str], str]] = [
+    ("typo_key", {"t.yaml": GOOD_TASK + "env: {episode_lenght: 10}\n"}, [],
+     "t.yaml:11: env.episode_lenght: unknown key (did you mean 'episode_length'?)"),
+    ("wrong_type", {"t.yaml": GOOD_TASK + "env: {episode_length: long}\n"}, [],
+     "env.episode_length: expected an integer, found str 'long'"),
+    ("bool_for_number", {"t.yaml": GOOD_TASK + "sim: {physics_dt: true}\n"}, [],
+     "sim.physics_dt: expected a number, found bool True"),
+    ("wrong_length", {"t.yaml": GOOD_TASK.replace("[3, 0, 0.46]", "[3, 0]")}, [],
+     "t.yaml:4: scene[1].pos3d: expected a list of 3 values, found 2"),
+    ("plan_length", {"t.yaml": GOOD_TASK.replace("target_object: [0, 0, 1]",
+                                                 "target_object: [0, 1]")}, [],
+     "target_object: expected 3 entries (one per plan step"),
+    ("bad_scene_index", {"t.yaml": GOOD_TASK.replace("scene_1]", "scene_7]")}, [],
+     "sample_target_from[2]: 'scene_7' names a missing scene entry (have 2 entries)"),
+    ("bad_traj_index", {"t.yaml": GOOD_TASK.replace("[traj_0,", "[traj_3,")}, [],
+     "'traj_3' names a missing trajectories entry (have [0])"),
+    ("bad_tarpos_index", {"t.yaml": GOOD_TASK.replace("tarpos_0", "tarpos_1")}, [],
+     "'tarpos_1' names a missing target_positions entry"),
+    ("bad_source_word", {"t.yaml": GOOD_TASK.replace("tarpos_0", "target_0")}, [],
+     "expected traj_K, tarpos_K or scene_K, found 'target_0'"),
+    ("bad_skill", {"t.yaml": GOOD_TASK.replace("[traj, carry, sit]", "[traj, carry, sitt]")},
+     [], "plan[2]: expected one of 'traj', 'carry', 'climb', 'sit', found str 'sitt' "
+         "(did you mean 'sit'?)"),
+    ("bad_object_index", {"t.yaml": GOOD_TASK.replace("[0, 0, 1]", "[0, 0, 5]")}, [],
+     "target_object[2]: object index 5 for 'sit' does not exist (scene has 2 objects)"),
+    ("carry_static", {"t.yaml": GOOD_TASK.replace("[0, 0, 1]\n", "[0, 1, 1]\n")}, [],
+     "'carry' needs a dynamic object, but scene[1] (chair) is static"),
+    ("missing_required", {"t.yaml": GOOD_TASK.replace("model_id: c, ", "")}, [],
+     "scene[1]: missing required key 'model_id' (SceneObjectCfg)"),
+    ("bad_literal", {"t.yaml": GOOD_TASK + "env: {character: robot}\n"}, [],
+     "env.character: expected one of 'humanoid', 'puppet', found str 'robot'"),
+    ("unknown_top_key", {"t.yaml": GOOD_TASK + "scenes: []\n"}, [],
+     "scenes: unknown key (did you mean 'scene'?)"),
+    ("model_in_task", {"t.yaml": GOOD_TASK + "model: {kind: mlp}\n"}, [],
+     "model: 'model' belongs in a model config"),
+    ("duplicate_key", {"t.yaml": GOOD_TASK + "plan: [traj]\n"}, [], "duplicate key 'plan'"),
+    ("missing_extends", {"t.yaml": "extends: nowhere.yaml\n" + GOOD_TASK}, [],
+     "t.yaml:1: extends: extends a file that does not exist"),
+    ("cyclic_extends", {"t.yaml": "extends: a.yaml\n" + GOOD_TASK,
+                        "a.yaml": "extends: b.yaml\n", "b.yaml": "extends: a.yaml\n"}, [],
+     "cyclic extends:"),
+    ("not_yaml", {"t.yaml": "plan: [traj\nscene: {\n"}, [], "t.yaml:2: not valid YAML"),
+    ("empty_file", {"t.yaml": ""}, [], "t.yaml: file is empty"),
+    ("top_level_list", {"t.yaml": "- a\n- b\n"}, [],
+     "expected a mapping of config keys at the top level, found list"),
+    ("short_trajectory", {"t.yaml": GOOD_TASK.replace("[[0, 0], [1, 1]]", "[[0, 0]]")}, [],
+     "trajectories[0]: expected at least 2 waypoints, found 1"),
+    ("random_scene_source", {"t.yaml": GOOD_TASK.replace("scene_1]", "scene_rand]")}, [],
+     "only traj_rand may be random, found 'scene_rand'"),
+    ("override_unknown", {"t.yaml": GOOD_TASK}, ["env.charcter=puppet"],
+     "<command line>: env.charcter: override of unknown key (did you mean 'character'?)"),
+    ("override_bad_value", {"t.yaml": GOOD_TASK}, ["sim.num_envs=[1, 2]"],
+     "sim.num_envs: expected an integer, found list [1, 2]"),
+    ("override_bad_index", {"t.yaml": GOOD_TASK}, ["scene[5].pos3d=[0, 0, 0]"],
+     "no item 5 (the list has 2 items)"),
+    ("override_no_equals", {"t.yaml": GOOD_TASK}, ["sim.num_envs"],
+     "bad override 'sim.num_envs': expected key.path=value"),
+    ("missing_task_file", {}, [], "t.yaml: task file not found"),
+]
+
+
+@pytest.mark.parametrize("name,files,overrides,expected", BROKEN, ids=[b[0] for b in BROKEN])
+def test_broken_config_gives_one_line_error_and_exit_2(
+        name: str, files: dict[str, str], overrides: list[str], expected: str,
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    for fname, text in files.items():
+        (tmp_path / fname).write_text(textwrap.dedent(text))
+    code = cli.main([str(tmp_path / "t.yaml"), "--model", "mlp", "--dry-run", *overrides])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "Traceback" not in err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("detach-run: error: ")
+    assert expected in lines[0], lines[0]
+
+
+def test_unknown_model_suggests_closest(capsys: pytest.CaptureFixture[str]) -> None:
+    code = cli.main([str(ROOT / "configs/tasks/lh1.yaml"), "--model", "tokenhs", "--dry-run"])
+    assert code == 2
+    assert "unknown model 'tokenhs' (did you mean 'tokenhsi'?)" in capsys.readouterr().err
+
+
+def test_model_yaml_by_path_and_unknown_section(tmp_path: Path) -> None:
+    model = tmp_path / "tiny.yaml"
+    model.write_text("model: {kind: mlp, adapter_units: [32]}\ntrain: {max_iterations: 3}\n")
+    cfg = resolve(ROOT / "configs/tasks/follow.yaml", str(model))
+    assert cfg.model_name == "tiny" and cfg.model.adapter_units == (32,)
+    model.write_text("model: {kind: mlp}\nenv: {episode_length: 3}\n")
+    with pytest.raises(ConfigError, match=r"tiny.yaml:2: env: unknown key"):
+        resolve(ROOT / "configs/tasks/follow.yaml", str(model))
+
+
+def test_cuda_request_on_a_cpu_machine_is_a_user_error(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    import torch
+
+    code = cli.main([str(ROOT / "configs/tasks/follow.yaml"), "--device", "cuda", "--dry-run"])
+    if torch.cuda.is_available():
+        assert code == 0
+    else:
+        assert code == 2 and "CUDA is not available" in capsys.readouterr().err
