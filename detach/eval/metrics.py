@@ -1,0 +1,98 @@
+"""The paper's evaluation metrics as pure functions over per-trial outcomes.
+
+A trial of an LH task yields, per subtask, a score (1 success, 0 failure, 0.5 for a carry
+whose box was grasped but not delivered) and an execution time in seconds (from the subtask's
+start to the next subtask's start, a failure or the time-out). Rates come with confidence
+intervals: Wilson's interval for 0/1 outcomes, a normal interval on the mean otherwise.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from statistics import NormalDist
+from typing import Sequence
+
+
+@dataclass(frozen=True)
+class Rate:
+    """A success rate with its confidence interval (all in [0, 1])."""
+
+    value: float
+    low: float
+    high: float
+    n: int
+
+    def to_json(self) -> dict[str, float | int | list[float]]:
+        return {"rate": self.value, "ci": [self.low, self.high], "n": self.n}
+
+    @classmethod
+    def from_json(cls, data: dict) -> "Rate":
+        return cls(float(data["rate"]), float(data["ci"][0]), float(data["ci"][1]),
+                   int(data["n"]))
+
+
+def _z(confidence: float) -> float:
+    return NormalDist().inv_cdf(0.5 + confidence / 2.0)
+
+
+def wilson_interval(successes: float, n: int, confidence: float = 0.95) -> tuple[float, float]:
+    """Wilson score interval: well behaved at 0 and 1, unlike the normal approximation."""
+    if n == 0:
+        return 0.0, 1.0
+    z = _z(confidence)
+    p = successes / n
+    denom = 1.0 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def success_rate(scores: Sequence[float], confidence: float = 0.95) -> Rate:
+    """Mean score with a CI: Wilson for 0/1 scores, normal (clipped to [0, 1]) otherwise."""
+    n = len(scores)
+    if n == 0:
+        return Rate(0.0, 0.0, 1.0, 0)
+    mean = sum(scores) / n
+    if all(s in (0.0, 1.0) for s in scores):
+        low, high = wilson_interval(sum(scores), n, confidence)
+    else:
+        var = sum((s - mean) ** 2 for s in scores) / max(n - 1, 1)
+        half = _z(confidence) * math.sqrt(var / n)
+        low, high = max(0.0, mean - half), min(1.0, mean + half)
+    return Rate(mean, low, high, n)
+
+
+def mean_interval(values: Sequence[float], confidence: float = 0.95) -> tuple[float, float, float]:
+    """(mean, low, high) with a normal interval; for execution times."""
+    n = len(values)
+    if n == 0:
+        return math.nan, math.nan, math.nan
+    mean = sum(values) / n
+    var = sum((v - mean) ** 2 for v in values) / max(n - 1, 1)
+    half = _z(confidence) * math.sqrt(var / n)
+    return mean, mean - half, mean + half
+
+
+def skill_rate(plan: Sequence[str], subtask_rates: Sequence[float], skill: str) -> float:
+    """Success of a skill in a plan: its first occurrence, 0 when the plan lacks it.
+
+    The first occurrence (not the mean over repeats) is what reproduces the paper's LH2 SGR
+    (0.08 from Follow 1.00, Carry 0.96, Sit 0.16, no Climb).
+    """
+    for s, rate in zip(plan, subtask_rates):
+        if s == skill:
+            return rate
+    return 0.0
+
+
+def sgr(plan: Sequence[str], subtask_rates: Sequence[float]) -> float:
+    """Skill generalisation rate ((S_climb + S_sit)/2) / ((S_follow + S_carry)/2)."""
+    learned = (skill_rate(plan, subtask_rates, "traj") + skill_rate(plan, subtask_rates, "carry"))
+    novel = (skill_rate(plan, subtask_rates, "climb") + skill_rate(plan, subtask_rates, "sit"))
+    return novel / learned if learned > 0 else 0.0
+
+
+def egr(lh_rate: float, lh1_rate: float) -> float:
+    """Environment generalisation rate S_Li / S_L1 (LH success on task i over LH1)."""
+    return lh_rate / lh1_rate if lh1_rate > 0 else 0.0

@@ -1,0 +1,173 @@
+"""A run's MCAP log: JSON messages on a few topics, readable up to a crash.
+
+Topics (all JSON with a JSON schema):
+- `/metrics`: one message per training iteration ({"iteration", "stage", and flat scalars
+  such as "loss/surrogate", "reward/mean", "success/traj", "fps"}).
+- `/scene`: once, the static scene (objects with asset paths and poses, trajectories, targets).
+- `/episode/bodies`: one message per frame of a preview/evaluation episode: body names,
+  positions [[x, y, z]] and quaternions [[w, x, y, z]] (MuJoCo order), object poses, the
+  current subtask.
+- `/tf`: the same body poses as `foxglove.FrameTransforms`, so the file opens in Foxglove.
+Chunks are flushed after every metrics message and every `flush_every` frames, so a crashed
+run's log reads up to its last flush.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, BinaryIO, Iterator, Sequence
+
+from mcap.reader import NonSeekingReader
+from mcap.writer import CompressionType, Writer
+
+_OBJECT = {"type": "object"}
+SCHEMAS: dict[str, dict[str, Any]] = {
+    "/metrics": {"title": "detach.Metrics", "type": "object",
+                 "properties": {"iteration": {"type": "integer"}, "stage": {"type": "string"}},
+                 "required": ["iteration"], "additionalProperties": {"type": "number"}},
+    "/scene": {"title": "detach.Scene", "type": "object",
+               "properties": {"objects": {"type": "array", "items": _OBJECT},
+                              "trajectories": _OBJECT, "targets": {"type": "array"}}},
+    "/episode/bodies": {"title": "detach.EpisodeBodies", "type": "object",
+                        "properties": {"episode": {"type": "integer"},
+                                       "frame": {"type": "integer"},
+                                       "time": {"type": "number"},
+                                       "bodies": {"type": "array", "items": {"type": "string"}},
+                                       "pos": {"type": "array"}, "quat": {"type": "array"},
+                                       "objects": {"type": "array"},
+                                       "subtask": {"type": "integer"},
+                                       "skill": {"type": "string"}},
+                        "required": ["episode", "frame", "bodies", "pos", "quat"]},
+}
+_VEC3 = {"type": "object", "properties": {k: {"type": "number"} for k in "xyz"}}
+FOXGLOVE_FRAME_TRANSFORMS = {
+    "title": "foxglove.FrameTransforms", "type": "object",
+    "properties": {"transforms": {"type": "array", "items": {
+        "type": "object",
+        "properties": {
+            "timestamp": {"type": "object", "properties": {"sec": {"type": "integer"},
+                                                           "nsec": {"type": "integer"}}},
+            "parent_frame_id": {"type": "string"}, "child_frame_id": {"type": "string"},
+            "translation": _VEC3,
+            "rotation": {"type": "object",
+                         "properties": {k: {"type": "number"} for k in "xyzw"}}}}}}}
+
+
+class RunLogWriter:
+    """Append-only writer of a run's log.mcap (one writer per process)."""
+
+    def __init__(self, path: Path, flush_every: int = 30, mode: str = "wb") -> None:
+        self.path = Path(path)
+        self._file: BinaryIO = open(self.path, mode)
+        self._writer = Writer(self._file, chunk_size=256 * 1024,
+                              compression=CompressionType.ZSTD)
+        self._writer.start(profile="", library="detach")
+        self._channels: dict[str, int] = {}
+        for topic, schema in SCHEMAS.items():
+            self._channels[topic] = self._register(topic, schema["title"], schema)
+        self._channels["/tf"] = self._register("/tf", "foxglove.FrameTransforms",
+                                               FOXGLOVE_FRAME_TRANSFORMS)
+        self._frames_since_flush = 0
+        self.flush_every = flush_every
+        self._sequence = 0
+        self._writer.flush()
+
+    def _register(self, topic: str, name: str, schema: dict[str, Any]) -> int:
+        schema_id = self._writer.register_schema(name=name, encoding="jsonschema",
+                                                 data=json.dumps(schema).encode())
+        return self._writer.register_channel(topic=topic, message_encoding="json",
+                                             schema_id=schema_id)
+
+    def _add(self, topic: str, data: dict[str, Any], time_ns: int) -> None:
+        self._sequence += 1
+        self._writer.add_message(channel_id=self._channels[topic], log_time=time_ns,
+                                 publish_time=time_ns, sequence=self._sequence,
+                                 data=json.dumps(data, separators=(",", ":")).encode())
+
+    def log_metrics(self, iteration: int, metrics: dict[str, float], stage: str = "",
+                    time_ns: int | None = None) -> None:
+        """One /metrics message per iteration; flushed at once (the dashboard tails it)."""
+        data: dict[str, Any] = {"iteration": int(iteration), "stage": stage}
+        data.update({k: float(v) for k, v in metrics.items()})
+        self._add("/metrics", data, time_ns if time_ns is not None else int(iteration))
+        self._writer.flush()
+
+    def log_scene(self, scene: dict[str, Any]) -> None:
+        self._add("/scene", scene, 0)
+        self._writer.flush()
+
+    def log_frame(self, episode: int, frame: int, time_s: float, bodies: Sequence[str],
+                  pos: Sequence[Sequence[float]], quat: Sequence[Sequence[float]],
+                  objects: Sequence[dict[str, Any]] = (), subtask: int = 0,
+                  skill: str = "") -> None:
+        """One /episode/bodies frame plus its foxglove.FrameTransforms twin on /tf."""
+        time_ns = int(round(time_s * 1e9))
+        self._add("/episode/bodies", {
+            "episode": episode, "frame": frame, "time": time_s, "bodies": list(bodies),
+            "pos": [[round(float(v), 5) for v in p] for p in pos],
+            "quat": [[round(float(v), 5) for v in q] for q in quat],
+            "objects": list(objects), "subtask": subtask, "skill": skill}, time_ns)
+        stamp = {"sec": time_ns // 1_000_000_000, "nsec": time_ns % 1_000_000_000}
+        self._add("/tf", {"transforms": [
+            {"timestamp": stamp, "parent_frame_id": "world", "child_frame_id": name,
+             "translation": {"x": p[0], "y": p[1], "z": p[2]},
+             "rotation": {"x": q[1], "y": q[2], "z": q[3], "w": q[0]}}
+            for name, p, q in zip(bodies, pos, quat)]}, time_ns)
+        self._frames_since_flush += 1
+        if self._frames_since_flush >= self.flush_every:
+            self.flush()
+
+    def flush(self) -> None:
+        self._frames_since_flush = 0
+        self._writer.flush()
+
+    def close(self) -> None:
+        """Write the summary section (indexes); the file is complete after this."""
+        if self._file.closed:
+            return
+        self._writer.finish()
+        self._file.close()
+
+    def __enter__(self) -> "RunLogWriter":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def iter_messages(path: Path, topics: Sequence[str] | None = None
+                  ) -> Iterator[tuple[str, int, dict[str, Any]]]:
+    """(topic, log_time_ns, message) in file order; stops quietly at a truncated tail.
+
+    Works on live files still being written and on files of crashed runs: everything up to
+    the last complete chunk is returned.
+    """
+    wanted = set(topics) if topics is not None else None
+    with open(path, "rb") as f:
+        reader = NonSeekingReader(f)
+        try:
+            for _schema, channel, message in reader.iter_messages(log_time_order=False):
+                if wanted is None or channel.topic in wanted:
+                    yield channel.topic, message.log_time, json.loads(message.data)
+        except Exception:  # noqa: BLE001 - a truncated or still-growing tail ends the read
+            return
+
+
+def read_metrics(path: Path) -> list[dict[str, Any]]:
+    """Every /metrics message, in iteration order."""
+    return [m for _t, _time, m in iter_messages(path, ["/metrics"])]
+
+
+def read_scene(path: Path) -> dict[str, Any] | None:
+    for _t, _time, m in iter_messages(path, ["/scene"]):
+        return m
+    return None
+
+
+def read_episodes(path: Path) -> dict[int, list[dict[str, Any]]]:
+    """Frames of /episode/bodies grouped by episode number."""
+    episodes: dict[int, list[dict[str, Any]]] = {}
+    for _t, _time, m in iter_messages(path, ["/episode/bodies"]):
+        episodes.setdefault(int(m["episode"]), []).append(m)
+    return episodes

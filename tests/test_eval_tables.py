@@ -1,0 +1,75 @@
+"""eval.json summaries and the paper's tables, from fixture outcomes."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from detach.eval.report import TrialOutcome, summarize
+from detach.eval.tables import ablation_table, generalization_table, skills_table
+
+
+def _evals(task: str, model: str, plan: list[str], scores: list[list[float]],
+           completed: list[bool], trained_on: str = "lh1") -> dict:
+    outcomes = [TrialOutcome(s, [10.0] * len(s), c, 40.0 if c else 60.0)
+                for s, c in zip(scores, completed)]
+    return summarize(plan, outcomes, task=task, model=model, seed=0, trained_on=trained_on)
+
+
+LH1 = ["traj", "carry", "climb", "sit"]
+LH2 = ["traj", "carry", "traj", "sit"]
+
+
+def test_summary_rates_times_and_partial_carry() -> None:
+    e = _evals("lh1", "detach", LH1, [[1, 1, 1, 1], [1, 0.5, 0, 0], [1, 0, 0, 0],
+                                      [0, 0, 0, 0]], [True, False, False, False])
+    assert [s["rate"] for s in e["subtasks"]] == [0.75, 0.375, 0.25, 0.25]
+    assert e["lh_success"]["rate"] == 0.25 and e["trials"] == 4
+    assert e["mean_execution_time"] == pytest.approx(55.0)
+    assert e["subtasks"][0]["ci"][0] < 0.75 < e["subtasks"][0]["ci"][1]
+    assert e["sgr"] == pytest.approx((0.25 + 0.25) / (0.75 + 0.375))
+    nan_times = summarize(LH1, [TrialOutcome([0, 0, 0, 0], [math.nan] * 4)])
+    assert nan_times["subtasks"][2]["mean_time"] is None
+
+
+def _fixture() -> list[dict]:
+    ok, bad = [1, 1, 1, 1], [1, 1, 0, 0]
+    return [
+        _evals("lh1", "tokenhsi", LH1, [ok, bad, bad, bad], [True, False, False, False]),
+        _evals("lh1", "detach", LH1, [ok, ok, bad, bad], [True, True, False, False]),
+        _evals("lh2", "detach", LH2, [ok, ok, bad, bad], [True, False, False, False]),
+        _evals("lh2", "tokenhsi", LH2, [bad, bad, bad, bad], [False] * 4),
+    ]
+
+
+def test_skills_table_markdown_layout() -> None:
+    md = skills_table(_fixture()).to_markdown()
+    lines = md.strip().splitlines()
+    assert lines[2] == "| Method | Follow | Carry | Climb | Sit | LH1 |"
+    assert lines[4].startswith("| TokenHSI | 1.00 [") and lines[5].startswith("| DETACH (ours) |")
+    assert lines[5].split(" | ")[-1].startswith("0.50 [")
+
+
+def test_generalization_table_egr_uses_lh1_of_same_model() -> None:
+    table = generalization_table(_fixture())
+    rows = {r[1]: r for r in table.rows}
+    detach = rows["DETACH (ours)"]
+    assert detach[0] == "LH2" and detach[5].text() == "-"  # LH2 has no climb
+    assert detach[-1].value == pytest.approx(0.25 / 0.5)    # EGR = S_LH2 / S_LH1
+    assert rows["TokenHSI"][-1].value == pytest.approx(0.0)
+    csv_text = table.to_csv()
+    assert csv_text.splitlines()[0].startswith("Experiment,Method,Follow,Follow low,Follow high")
+    assert "\\begin{tabular}" in table.to_latex()
+
+
+def test_ablation_table_rows() -> None:
+    evals = [_evals("lh1", m, LH1, [[1, 1, 1, 1]] * 2, [True, True]) for m in
+             ("detach", "ablation_a1")]
+    evals += [_evals("lh3", m, ["traj", "carry", "traj", "climb", "sit"],
+                     [[1, 1, 1, 1, r]] * 2, [bool(r)] * 2)
+              for m, r in (("detach", 1), ("ablation_a1", 0))]
+    md = ablation_table(evals).to_markdown().splitlines()
+    assert md[2] == "| Method | EGR | SGR | LH SR |"
+    assert md[4].startswith("| A1 (w/o env encoder) | 0.00 |")
+    assert md[5].startswith("| DETACH (ours) | 1.00 | 1.000 |")
