@@ -1,0 +1,263 @@
+"""rsl-rl-lib's PPO extended with an adversarial motion prior, multi-objective critics and
+stage-dependent auxiliary losses; selected through `algorithm.class_name`, rsl-rl unforked.
+
+What it adds to PPO:
+- AMP: every env step, the discriminator scores the newest AMP window (`amp` group; for
+  episodes that just ended, the env's `extras["terminal_amp"]` window from before the reset)
+  conditioned on the skill one-hot (`task` group); the style reward is mixed with the task
+  reward (`task_reward_weight`, `style_reward_weight`). After PPO's update the discriminator
+  trains on reference windows from `reference_sampler(n) -> (amp, skill one-hot)` against
+  this rollout's and replayed policy windows.
+- Body-part discriminators (CML): one discriminator per entry of `amp_parts` (feature
+  indices of the AMP window), each its own reward objective.
+- Multi-objective critics (CML): a critic with `num_objectives = K` predicts one value per
+  objective ([task, style or style parts]); GAE runs per objective and advantages are
+  normalised per objective before their weighted sum (CML's per-objective normalisation).
+- Stages (DETACH): `stage` is set by the runner each iteration. In "pretrain" PPO does not
+  update; only `aux_loss_fn(obs, stage)` is minimised (encoder pre-training). In other stages
+  PPO updates and then `aux_loss_fn` runs over the same rollout (alternating optimisation
+  with the PPO optimiser, whose parameter list skips frozen parameters' missing gradients).
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import torch
+from tensordict import TensorDict
+from rsl_rl.algorithms import PPO
+
+from detach.train.discriminator import AmpDiscriminator, ReplayBuffer
+
+AuxLossFn = Callable[[TensorDict, str], tuple[torch.Tensor, dict[str, float]]]
+ReferenceSampler = Callable[[int], tuple[torch.Tensor, torch.Tensor]]
+
+
+class AmpPPO(PPO):
+    def __init__(self, actor, critic, storage, amp_cfg: dict | None = None,
+                 aux_updates: int = 1, **ppo_kwargs) -> None:
+        super().__init__(actor, critic, storage, **ppo_kwargs)
+        amp_cfg = dict(amp_cfg or {})
+        self.amp_enabled = bool(amp_cfg.get("enabled", False))
+        self.task_weight = float(amp_cfg.get("task_reward_weight", 1.0)) if self.amp_enabled else 1.0
+        self.style_weight = float(amp_cfg.get("style_reward_weight", 0.0)) if self.amp_enabled else 0.0
+        self.grad_penalty = float(amp_cfg.get("grad_penalty", 5.0))
+        self.logit_reg = float(amp_cfg.get("logit_reg", 0.01))
+        self.disc_batch = int(amp_cfg.get("batch_size", 512))
+        self.disc_updates = int(amp_cfg.get("updates", 2))
+        self.conditional = bool(amp_cfg.get("task_specific", True))
+        self.reference_sampler: ReferenceSampler | None = None
+        self.aux_loss_fn: AuxLossFn | None = None
+        self.aux_updates = aux_updates
+        self.stage = "ppo"
+        self.num_objectives = int(getattr(critic, "num_objectives", 1))
+        obs = storage.observations
+        amp_dim = obs["amp"].shape[-1] if self.amp_enabled else 0
+        cond_dim = obs["task"].shape[-1] if (self.amp_enabled and self.conditional) else 0
+        parts: dict[str, list[int]] = amp_cfg.get("parts") or {}
+        self.amp_parts = {name: torch.as_tensor(idx, dtype=torch.long, device=self.device)
+                          for name, idx in parts.items()} or {"all": None}
+        self.discriminators = torch.nn.ModuleDict()
+        if self.amp_enabled:
+            for name, idx in self.amp_parts.items():
+                width = amp_dim if idx is None else int(idx.numel())
+                self.discriminators[name] = AmpDiscriminator(
+                    width, cond_dim, amp_cfg.get("disc_hidden", (1024, 512)),
+                    amp_cfg.get("objective", "lsgan")).to(self.device)
+            self.disc_optimizer = torch.optim.Adam(
+                self.discriminators.parameters(), lr=float(amp_cfg.get("learning_rate", 1e-4)),
+                weight_decay=float(amp_cfg.get("weight_decay", 1e-4)))
+            self.replay = ReplayBuffer(int(amp_cfg.get("replay_size", 100000)), amp_dim,
+                                       cond_dim, self.device)
+        expected = 1 + (len(self.amp_parts) if self.amp_enabled else 0)
+        if self.num_objectives not in (1, expected):
+            raise ValueError(f"critic predicts {self.num_objectives} objectives; this AMP setup "
+                             f"has {expected} (task + {len(self.amp_parts)} style)")
+        k, t, n = self.num_objectives, storage.num_transitions_per_env, storage.num_envs
+        self.objective_weights = self._objective_weights().to(self.device)
+        if k > 1:
+            storage.values = torch.zeros(t, n, k, device=self.device)
+            storage.returns = torch.zeros(t, n, k, device=self.device)
+        self.objective_rewards = torch.zeros(t, n, k, device=self.device)
+        self._rollout_amp: list[torch.Tensor] = []
+        self._rollout_cond: list[torch.Tensor] = []
+        self._reward_sums = {"task": 0.0, "style": 0.0, "count": 0}
+
+    def _objective_weights(self) -> torch.Tensor:
+        parts = len(self.amp_parts) if self.amp_enabled else 0
+        if self.num_objectives == 1:
+            return torch.ones(1)
+        return torch.tensor([self.task_weight] + [self.style_weight / parts] * parts)
+
+    # ------------------------------------------------------------------ rollout
+    def _style_rewards(self, amp_obs: torch.Tensor, cond: torch.Tensor | None) -> torch.Tensor:
+        """[N, parts] style reward of each discriminator."""
+        out = []
+        for name, disc in self.discriminators.items():
+            idx = self.amp_parts[name]
+            x = amp_obs if idx is None else amp_obs.index_select(-1, idx)
+            out.append(disc.style_reward(x, cond))
+        return torch.stack(out, dim=-1)
+
+    def process_env_step(self, obs: TensorDict, rewards: torch.Tensor, dones: torch.Tensor,
+                         extras: dict) -> None:
+        task_reward = rewards.reshape(-1).to(self.device)
+        objectives = [task_reward]
+        if self.amp_enabled:
+            amp_obs = obs["amp"]
+            terminal = extras.get("terminal_amp")
+            if terminal is not None:
+                amp_obs = torch.where(dones.reshape(-1, 1).bool(), terminal.to(self.device), amp_obs)
+            cond = self.transition.observations["task"] if self.conditional else None
+            style = self._style_rewards(amp_obs, cond)
+            self._rollout_amp.append(amp_obs.clone())
+            if cond is not None:
+                self._rollout_cond.append(cond.clone())
+            objectives += list(style.unbind(-1))
+            self._reward_sums["style"] += float(style.mean())
+        self._reward_sums["task"] += float(task_reward.mean())
+        self._reward_sums["count"] += 1
+        per_objective = torch.stack(objectives, dim=-1)  # [N, 1 + parts]
+        if self.num_objectives == 1:
+            mixed = self.task_weight * task_reward
+            if self.amp_enabled:
+                mixed = mixed + self.style_weight * per_objective[:, 1:].mean(-1)
+            per_objective = mixed.unsqueeze(-1)
+        values = self.transition.values
+        time_outs = extras.get("time_outs")
+        if time_outs is not None:  # bootstrap at time limits, per objective
+            per_objective = per_objective + self.gamma * values * time_outs.reshape(-1, 1).to(
+                self.device).float()
+        self.objective_rewards[self.storage.step].copy_(per_objective)
+        self.transition.rewards = (per_objective * self.objective_weights).sum(-1)
+        self.transition.dones = dones
+        self.storage.add_transition(self.transition)
+        self.transition.clear()
+        self.actor.reset(dones)
+        self.critic.reset(dones)
+
+    def compute_returns(self, obs: TensorDict) -> None:
+        """GAE per objective; advantages normalised per objective, then weighted and summed."""
+        st = self.storage
+        hidden = self.critic.get_hidden_state()
+        last_values = self.critic(obs).detach().reshape(st.num_envs, -1)
+        self.critic.reset(hidden_state=hidden)
+        advantage = torch.zeros_like(last_values)
+        values = st.values
+        for step in reversed(range(st.num_transitions_per_env)):
+            next_values = last_values if step == st.num_transitions_per_env - 1 else values[step + 1]
+            not_done = 1.0 - st.dones[step].float()
+            delta = self.objective_rewards[step] + not_done * self.gamma * next_values - values[step]
+            advantage = delta + not_done * self.gamma * self.lam * advantage
+            st.returns[step] = advantage + values[step]
+        adv = st.returns - values
+        if not self.normalize_advantage_per_mini_batch:
+            flat = adv.reshape(-1, adv.shape[-1])
+            adv = (adv - flat.mean(0)) / (flat.std(0) + 1e-8)
+        st.advantages = (adv * self.objective_weights).sum(-1, keepdim=True)
+
+    # ------------------------------------------------------------------ learning
+    def update(self) -> dict[str, float]:
+        obs = self.storage.observations.flatten(0, 1)
+        if self.stage == "pretrain":
+            self.storage.clear()
+            losses: dict[str, float] = {}
+        else:
+            losses = super().update()
+        if self.amp_enabled:
+            losses.update(self._update_discriminators())
+        if self.aux_loss_fn is not None:
+            losses.update(self._update_aux(obs))
+        count = max(self._reward_sums["count"], 1)
+        losses["reward_task"] = self._reward_sums["task"] / count
+        if self.amp_enabled:
+            losses["reward_style"] = self._reward_sums["style"] / count
+        self._reward_sums = {"task": 0.0, "style": 0.0, "count": 0}
+        return losses
+
+    def _update_discriminators(self) -> dict[str, float]:
+        if not self._rollout_amp:
+            return {}
+        if self.reference_sampler is None:
+            raise RuntimeError("AMP is enabled but no reference_sampler was set")
+        policy = torch.cat(self._rollout_amp)
+        cond = torch.cat(self._rollout_cond) if self._rollout_cond else None
+        self._rollout_amp.clear()
+        self._rollout_cond.clear()
+        sums: dict[str, float] = {}
+        for _ in range(self.disc_updates):
+            n = min(self.disc_batch, policy.shape[0])
+            idx = torch.randint(0, policy.shape[0], (n,), device=self.device)
+            pol_obs, pol_cond = policy[idx], (cond[idx] if cond is not None else None)
+            if self.replay.size > 0:
+                old_obs, old_cond = self.replay.sample(n)
+                pol_obs = torch.cat([pol_obs, old_obs])
+                pol_cond = torch.cat([pol_cond, old_cond]) if pol_cond is not None else None
+            ref_obs, ref_cond = self.reference_sampler(pol_obs.shape[0])
+            ref_obs, ref_cond = ref_obs.to(self.device), ref_cond.to(self.device)
+            if pol_cond is None:
+                ref_cond = None
+            total = torch.zeros((), device=self.device)
+            for name, disc in self.discriminators.items():
+                sel = self.amp_parts[name]
+                pick = (lambda x: x) if sel is None else (lambda x, s=sel: x.index_select(-1, s))
+                terms = disc.loss(pick(ref_obs), pick(pol_obs), ref_cond, pol_cond,
+                                  self.grad_penalty, self.logit_reg)
+                total = total + terms["total"]
+                for key, value in terms.items():
+                    tag = f"amp/{key}" if len(self.discriminators) == 1 else f"amp_{name}/{key}"
+                    sums[tag] = sums.get(tag, 0.0) + float(value.detach()) / self.disc_updates
+            self.disc_optimizer.zero_grad()
+            total.backward()
+            self.disc_optimizer.step()
+        with torch.no_grad():
+            for name, disc in self.discriminators.items():
+                sel = self.amp_parts[name]
+                disc.normalizer.update(policy if sel is None else policy.index_select(-1, sel))
+        self.replay.insert(policy, cond)
+        return sums
+
+    def _update_aux(self, obs: TensorDict) -> dict[str, float]:
+        sums: dict[str, float] = {}
+        batch = max(obs.batch_size[0] // self.num_mini_batches, 1)
+        steps = 0
+        for _ in range(self.aux_updates):
+            perm = torch.randperm(obs.batch_size[0], device=self.device)
+            for start in range(0, perm.numel() - batch + 1, batch):
+                loss, logs = self.aux_loss_fn(obs[perm[start:start + batch]], self.stage)
+                if loss.requires_grad:
+                    self.optimizer.zero_grad()
+                    loss.backward()
+                    torch.nn.utils.clip_grad_norm_(
+                        [p for g in self.optimizer.param_groups for p in g["params"]],
+                        self.max_grad_norm)
+                    self.optimizer.step()
+                for key, value in logs.items():
+                    sums[key] = sums.get(key, 0.0) + float(value)
+                steps += 1
+        return {k: v / max(steps, 1) for k, v in sums.items()}
+
+    # ------------------------------------------------------------------ state
+    def save(self) -> dict:
+        saved = super().save()
+        if self.amp_enabled:
+            saved["discriminator_state_dict"] = self.discriminators.state_dict()
+            saved["disc_optimizer_state_dict"] = self.disc_optimizer.state_dict()
+        return saved
+
+    def load(self, loaded_dict: dict, load_cfg: dict | None, strict: bool) -> bool:
+        load_iteration = super().load(loaded_dict, load_cfg, strict)
+        if self.amp_enabled and "discriminator_state_dict" in loaded_dict:
+            self.discriminators.load_state_dict(loaded_dict["discriminator_state_dict"],
+                                                strict=strict)
+            if load_cfg is None or load_cfg.get("optimizer"):
+                self.disc_optimizer.load_state_dict(loaded_dict["disc_optimizer_state_dict"])
+        return load_iteration
+
+    def train_mode(self) -> None:
+        super().train_mode()
+        self.discriminators.train()
+
+    def eval_mode(self) -> None:
+        super().eval_mode()
+        self.discriminators.eval()
