@@ -6,46 +6,11 @@ import copy
 
 import pytest
 import torch
-from rsl_rl.env import VecEnv
 from rsl_rl.models import MLPModel
 from rsl_rl.runners import OnPolicyRunner
-from tensordict import TensorDict
 
 from detach.train.discriminator import AmpDiscriminator, ReplayBuffer
-
-
-class PointMassEnv(VecEnv):
-    """2-D point mass that should move to the origin; `amp` is a 2-step window of its state."""
-
-    def __init__(self, num_envs: int = 16, device: str = "cpu") -> None:
-        self.num_envs, self.num_actions, self.max_episode_length = num_envs, 2, 50
-        self.device, self.cfg = device, {}
-        self.pos = torch.randn(num_envs, 2) * 2
-        self.prev = self.pos.clone()
-        self.episode_length_buf = torch.zeros(num_envs, dtype=torch.long)
-
-    def get_observations(self) -> TensorDict:
-        window = torch.cat([self.prev, self.pos], dim=-1)
-        return TensorDict({"self": self.pos.clone(), "env": -self.pos.clone(),
-                           "task": torch.nn.functional.one_hot(
-                               torch.zeros(self.num_envs, dtype=torch.long), 4).float(),
-                           "critic": self.pos.clone(), "amp": window},
-                          batch_size=[self.num_envs])
-
-    def step(self, actions: torch.Tensor):
-        self.prev = self.pos.clone()
-        self.pos = self.pos + 0.1 * actions.clamp(-1, 1)
-        reward = torch.exp(-self.pos.norm(dim=-1))
-        self.episode_length_buf += 1
-        time_outs = self.episode_length_buf >= self.max_episode_length
-        terminal_amp = torch.cat([self.prev, self.pos], dim=-1)
-        ids = time_outs.nonzero().flatten()
-        self.pos[ids] = torch.randn(len(ids), 2) * 2
-        self.prev[ids] = self.pos[ids]
-        self.episode_length_buf[ids] = 0
-        extras = {"time_outs": time_outs, "terminal_amp": terminal_amp,
-                  "log": {"success/traj": (reward > 0.8).float().mean()}}
-        return self.get_observations(), reward, time_outs, extras
+from tests.fakes import PointMassEnv
 
 
 class MultiHeadCritic(MLPModel):
@@ -55,7 +20,7 @@ class MultiHeadCritic(MLPModel):
         super().__init__(obs, obs_groups, obs_set, self.num_objectives, **kw)
 
 
-def _train_cfg(critic_class: str = "rsl_rl.models:MLPModel", amp: bool = True) -> dict:
+def train_cfg(critic_class: str = "rsl_rl.models:MLPModel", amp: bool = True) -> dict:
     return {
         "num_steps_per_env": 8, "save_interval": 100, "check_for_nan": True,
         "obs_groups": {"actor": ["self", "env", "task"], "critic": ["critic", "task"]},
@@ -72,14 +37,14 @@ def _train_cfg(critic_class: str = "rsl_rl.models:MLPModel", amp: bool = True) -
     }
 
 
-def _reference(n: int) -> tuple[torch.Tensor, torch.Tensor]:
+def reference(n: int) -> tuple[torch.Tensor, torch.Tensor]:
     """Reference motion: points resting near the origin."""
     pos = torch.randn(n, 2) * 0.05
     return torch.cat([pos, pos], -1), torch.nn.functional.one_hot(
         torch.zeros(n, dtype=torch.long), 4).float()
 
 
-def test_discriminator_separates_reference_from_noise() -> None:
+def test_discriminator_separatesreference_from_noise() -> None:
     torch.manual_seed(0)
     disc = AmpDiscriminator(20, cond_dim=0, hidden=(64, 64))
     opt = torch.optim.Adam(disc.parameters(), lr=1e-3)
@@ -118,9 +83,9 @@ def test_replay_buffer_wraps_around() -> None:
 def test_amp_ppo_trains_and_checkpoints(critic: str, tmp_path) -> None:
     torch.manual_seed(0)
     env = PointMassEnv()
-    runner = OnPolicyRunner(env, _train_cfg(critic), log_dir=None, device="cpu")
+    runner = OnPolicyRunner(env, train_cfg(critic), log_dir=None, device="cpu")
     alg = runner.alg
-    alg.reference_sampler = _reference
+    alg.reference_sampler = reference
     assert alg.num_objectives == (2 if "MultiHead" in critic else 1)
     before = copy.deepcopy(alg.discriminators.state_dict())
     runner.learn(3)
@@ -129,7 +94,7 @@ def test_amp_ppo_trains_and_checkpoints(critic: str, tmp_path) -> None:
     assert alg.replay.size > 0
     path = tmp_path / "model.pt"
     runner.save(str(path))
-    fresh = OnPolicyRunner(PointMassEnv(), _train_cfg(critic), log_dir=None, device="cpu")
+    fresh = OnPolicyRunner(PointMassEnv(), train_cfg(critic), log_dir=None, device="cpu")
     fresh.load(str(path))
     for k, v in alg.discriminators.state_dict().items():
         assert torch.equal(v, fresh.alg.discriminators.state_dict()[k])
@@ -140,9 +105,9 @@ def test_amp_ppo_trains_and_checkpoints(critic: str, tmp_path) -> None:
 def test_per_objective_advantages_are_normalised_separately() -> None:
     torch.manual_seed(0)
     env = PointMassEnv()
-    runner = OnPolicyRunner(env, _train_cfg(f"{__name__}:MultiHeadCritic"), None, "cpu")
+    runner = OnPolicyRunner(env, train_cfg(f"{__name__}:MultiHeadCritic"), None, "cpu")
     alg = runner.alg
-    alg.reference_sampler = _reference
+    alg.reference_sampler = reference
     obs = env.get_observations()
     with torch.inference_mode():
         for _ in range(8):

@@ -1,0 +1,42 @@
+"""Which training stage each PPO iteration belongs to.
+
+DETACH's progressive protocol (paper, "Progressive Training Protocol") runs three stages:
+`pretrain` (encoders alone), `fusion` (encoders frozen) and `joint` (everything, with
+preservation regularisers). Other models run a single `ppo` stage. When a run is shorter than
+the configured stage lengths (a quick CPU run), the stages are scaled proportionally so that
+every stage still happens, in order.
+"""
+
+from __future__ import annotations
+
+from detach.config_schema import StagesCfg
+
+STAGE_NAMES = ("pretrain", "fusion", "joint")
+
+
+def stage_lengths(stages: StagesCfg, total: int) -> list[tuple[str, int]]:
+    """[(stage, iterations)] covering exactly `total` iterations."""
+    lengths = [(n, getattr(stages, n)) for n in STAGE_NAMES if getattr(stages, n) > 0]
+    if not lengths:
+        return [("ppo", total)]
+    configured = sum(k for _n, k in lengths)
+    if configured == total:
+        return lengths
+    scaled = [(n, max(1, round(k * total / configured))) for n, k in lengths]
+    # Give the rounding remainder to the last stage (it is the one that trains everything).
+    excess = sum(k for _n, k in scaled) - total
+    name, last = scaled[-1]
+    scaled[-1] = (name, max(1, last - excess))
+    while sum(k for _n, k in scaled) > total and len(scaled) > 1:
+        scaled.pop(0)
+    return scaled
+
+
+def stage_at(schedule: list[tuple[str, int]], iteration: int) -> str:
+    """Stage of a 0-based iteration; iterations past the schedule stay in the last stage."""
+    end = 0
+    for name, k in schedule:
+        end += k
+        if iteration < end:
+            return name
+    return schedule[-1][0]
