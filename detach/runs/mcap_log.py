@@ -3,10 +3,19 @@
 Topics (all JSON with a JSON schema):
 - `/metrics`: one message per training iteration ({"iteration", "stage", and flat scalars
   such as "loss/surrogate", "reward/mean", "success/traj", "fps"}).
-- `/scene`: once, the static scene (objects with asset paths and poses, trajectories, targets).
+- `/scene`: once, the static scene:
+  {"task": "lh1",
+   "objects": [{"name", "category", "mesh": path of the asset's mesh.obj (object frame,
+                centred on its bbox), "pos": [x, y, z], "quat": [w, x, y, z], "bbox": [x, y, z],
+                "static": bool}],
+   "trajectories": {"0": [[x, y], ...]},
+   "targets": [{"subtask": i, "skill": "traj"|"carry"|"climb"|"sit", "pos": [x, y, z]}],
+   "bodies": [15 body names],
+   "body_geoms": [{"body": name, "type": "capsule"|"sphere"|"box", "size": [...] (MuJoCo
+                   geom size), "pos": [x, y, z], "quat": [w, x, y, z] (in the body frame)}]}
 - `/episode/bodies`: one message per frame of a preview/evaluation episode: body names,
-  positions [[x, y, z]] and quaternions [[w, x, y, z]] (MuJoCo order), object poses, the
-  current subtask.
+  positions [[x, y, z]] and quaternions [[w, x, y, z]] (MuJoCo order), poses of the dynamic
+  objects [{"name", "pos", "quat"}], the current subtask index and its skill.
 - `/tf`: the same body poses as `foxglove.FrameTransforms`, so the file opens in Foxglove.
 Chunks are flushed after every metrics message and every `flush_every` frames, so a crashed
 run's log reads up to its last flush.
