@@ -1,0 +1,208 @@
+"""Public API of the asset pipeline: requests from tasks, batch builds, and reading assets back.
+
+Stable entry points (the scene compiler and the environments rely on them):
+- `default_assets_root()`: `$DETACH_ASSETS` or `./assets`.
+- `requests_from_task(task, source_root)`: the deduplicated AssetRequests a task needs.
+- `build_assets(requests, out, ...)`: build what is missing (cache, process pool, progress).
+- `load_asset(folder) -> AssetInfo`: one built asset folder, validated.
+- `ensure_assets(task, out) -> {object index: AssetInfo}`: build quietly what is missing,
+  so a run never fails only because `detach-scene build` was skipped.
+Asset folder layout: ARCHITECTURE.md, "Asset folder".
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, fields
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from detach.config_schema import SceneObjectCfg, TaskCfg
+from scene_builder import procedural
+from scene_builder.cache import read_config
+from scene_builder.errors import AssetError
+from scene_builder.pipeline import (
+    PROCEDURAL, AssetRequest, BuildOptions, BuildResult, Planned, build_planned, check_cache, plan,
+)
+
+__all__ = ["AssetError", "AssetInfo", "AssetRequest", "BuildOptions", "BuildResult", "build_assets",
+           "default_assets_root", "ensure_assets", "load_asset", "request_diff", "request_for_object",
+           "requests_from_task"]
+
+
+REBUILD = "rebuild with `detach-scene build --force`"
+
+
+def default_assets_root() -> Path:
+    """Where assets live unless told otherwise: `$DETACH_ASSETS`, else `./assets` (cwd)."""
+    return Path(os.environ.get("DETACH_ASSETS") or "assets")
+
+
+@dataclass(frozen=True, eq=False)
+class AssetInfo:
+    """One built asset as the scene compiler needs it. Frames: object frame = bbox centre at
+    the origin, metres, Z up, facing +Y (world pose comes from the task's pos3d/z_rot_angle)."""
+
+    folder: Path
+    category: str
+    model_id: str
+    mesh_path: Path
+    """Visual mesh (mesh.obj)."""
+    hull_paths: tuple[Path, ...]
+    """Convex collision pieces (collision/hull_NNN.obj), one MuJoCo geom each."""
+    bbox: tuple[float, float, float]
+    tar_sit_pos: tuple[float, float, float]
+    tar_climb_pos: tuple[float, float, float]
+    height_map: np.ndarray
+    """float32 [128, 128]; row 0 = max Y, column 0 = min X; metres above the lowest point."""
+    config: dict[str, Any]
+    """The whole config.json."""
+
+
+def load_asset(folder: str | Path) -> AssetInfo:
+    """Read an asset folder; AssetError (one line) if it is missing or incomplete."""
+    folder = Path(folder)
+    config = read_config(folder)
+    if config is None:
+        raise AssetError(f"{folder}: not an asset folder (no readable config.json); run `detach-scene build`")
+    try:
+        hulls = tuple(folder / name for name in config["collision"]["files"])
+        hmap = np.load(folder / "height_map" / "map2d.npy")
+        info = AssetInfo(
+            folder=folder, category=config["category"], model_id=config["model_id"], mesh_path=folder / "mesh.obj",
+            hull_paths=hulls, bbox=tuple(config["bbox"]), tar_sit_pos=tuple(config["tarSitPos"]),
+            tar_climb_pos=tuple(config["tarClimbPos"]), height_map=hmap, config=config,
+        )
+    except (KeyError, TypeError, OSError, ValueError) as e:
+        raise AssetError(f"{folder}: incomplete asset ({type(e).__name__}: {e}); {REBUILD}") from None
+    missing = [p for p in (info.mesh_path, *hulls) if not p.is_file()]
+    if missing:
+        raise AssetError(f"{folder}: incomplete asset (missing {missing[0].name}); {REBUILD}")
+    return info
+
+
+def request_for_object(
+    obj: SceneObjectCfg, source_root: str | Path | None = None, up: str = "y"
+) -> AssetRequest:
+    """The AssetRequest of one scene object. A non-procedural `source` is a path relative to
+    `source_root` (default: the cwd); `up` applies to such file sources only."""
+    if obj.source == PROCEDURAL:
+        return AssetRequest(obj.category, obj.model_id, PROCEDURAL, obj.variant, "y", 0.0, None, obj.size)
+    path = Path(obj.source)
+    if not path.is_absolute() and source_root is not None:
+        path = Path(source_root) / path
+    return AssetRequest(obj.category, obj.model_id, str(path), obj.variant, up,  # type: ignore[arg-type]
+                        0.0, None, obj.size)
+
+
+def request_diff(a: AssetRequest, b: AssetRequest) -> str:
+    """Which fields two requests disagree on, for error messages."""
+    return ", ".join(f"{f.name} {getattr(a, f.name)!r} vs {getattr(b, f.name)!r}"
+                     for f in fields(AssetRequest) if getattr(a, f.name) != getattr(b, f.name))
+
+
+def requests_from_task(
+    task: TaskCfg, source_root: str | Path | None = None, up: str = "y"
+) -> list[AssetRequest]:
+    """Unique requests of a task's scene, in scene order. Pure (no file access).
+
+    Objects sharing `<category>/<model_id>` must ask for the same thing; otherwise one folder
+    would have to hold two different assets, an AssetError naming both objects.
+    """
+    seen: dict[tuple[str, str], tuple[int, SceneObjectCfg, AssetRequest]] = {}
+    for i, obj in enumerate(task.scene):
+        req = request_for_object(obj, source_root, up)
+        if req.source == PROCEDURAL:
+            try:
+                procedural.resolve_category(req.category)
+            except AssetError as e:
+                raise AssetError(f"task '{task.name}': scene[{i}] '{obj.name}': {e}") from None
+        key = (req.category, req.model_id)
+        if key in seen and seen[key][2] != req:
+            j, other, prev = seen[key]
+            raise AssetError(f"task '{task.name}': scene[{j}] '{other.name}' and scene[{i}] '{obj.name}' "
+                             f"both use {key[0]}/{key[1]} but differ ({request_diff(prev, req)}); "
+                             "give them different model_ids")
+        seen.setdefault(key, (i, obj, req))
+    return [req for _, _, req in seen.values()]
+
+
+def build_assets(
+    requests: Sequence[AssetRequest],
+    out: str | Path | None = None,
+    options: BuildOptions | None = None,
+    jobs: int | None = None,
+    force: bool = False,
+    progress: bool = False,
+) -> list[BuildResult]:
+    """Build every request into `out` (default `default_assets_root()`), one result each,
+    in request order. Cached assets are skipped (a warm run only hashes and reads JSON);
+    misses run in a process pool of `jobs` workers (default: all cores; 1 = in-process).
+    Never raises for a bad input: it comes back as a 'failed' result."""
+    out = Path(out) if out is not None else default_assets_root()
+    options = options or BuildOptions()
+    results: dict[int, BuildResult] = {}
+    todo: list[tuple[int, Planned]] = []
+    for i, req in enumerate(requests):
+        try:
+            p = plan(req, options)
+        except AssetError as e:
+            results[i] = BuildResult(req, "failed", req.folder(out), error=str(e))
+            continue
+        if not force and check_cache(p, out):
+            results[i] = BuildResult(req, "cached", req.folder(out))
+        else:
+            todo.append((i, p))
+    jobs = max(1, min(jobs or os.cpu_count() or 1, len(todo)))
+    bar = tqdm(total=len(todo), desc="assets", unit="asset", disable=None if progress else True)
+    if jobs == 1:
+        for i, p in todo:
+            results[i] = build_planned(p, out, options)
+            bar.update()
+    else:  # spawn: no inherited Embree/OpenMP thread state from the parent
+        todo_by_index = dict(todo)
+        with ProcessPoolExecutor(jobs, mp_context=get_context("spawn")) as pool:
+            futures = {pool.submit(build_planned, p, out, options): i for i, p in todo}
+            for fut in as_completed(futures):
+                i = futures[fut]
+                try:
+                    results[i] = fut.result()
+                except Exception as e:  # the worker died (e.g. a crash inside CoACD's C++ core)
+                    p = todo_by_index[i]
+                    results[i] = BuildResult(p.request, "failed", p.request.folder(out),
+                                             error=f"{p.label}: worker process died ({type(e).__name__}), "
+                                                   "possibly while building another asset; retry with --jobs 1")
+                bar.update()
+    bar.close()
+    return [results[i] for i in range(len(requests))]
+
+
+def ensure_assets(
+    task: TaskCfg,
+    out: str | Path | None = None,
+    source_root: str | Path | None = None,
+    options: BuildOptions | None = None,
+    jobs: int | None = None,
+) -> dict[int, AssetInfo]:
+    """AssetInfo per scene object index, building (quietly) whatever is missing or stale.
+
+    Raises AssetError (one line, all failures joined) if any asset cannot be built."""
+    out = Path(out) if out is not None else default_assets_root()
+    results = build_assets(requests_from_task(task, source_root), out, options, jobs)
+    failed = [r.error for r in results if r.status == "failed"]
+    if failed:
+        raise AssetError(f"task '{task.name}': {len(failed)} asset(s) failed: " + "; ".join(failed))
+    loaded: dict[Path, AssetInfo] = {}
+    by_index = {}
+    for i, obj in enumerate(task.scene):
+        folder = request_for_object(obj, source_root).folder(out)
+        if folder not in loaded:
+            loaded[folder] = load_asset(folder)
+        by_index[i] = loaded[folder]
+    return by_index
