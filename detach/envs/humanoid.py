@@ -1,0 +1,276 @@
+"""The project's simulated humanoid, built with `mujoco.MjSpec` (no XML file to keep in sync).
+
+Proportions follow the AMP/TokenHSI character: 15 rigid bodies, 12 controllable joints with
+32 hinge degrees of freedom (3-DoF abdomen, neck, shoulders, hips, knees and ankles as three
+hinges x/y/z each; 1-DoF elbows). Knees are 3-DoF like TokenHSI's (x/z limited to +-5.6 deg,
+y 0..160 deg). Frames: the character faces +X, +Y is its left, +Z is up; at the default pose
+(all hinges 0) it stands upright with its arms hanging down and the pelvis origin
+`START_HEIGHT` above the floor.
+
+Every hinge is driven by a PD position actuator (MuJoCo `general` actuator with an affine
+bias: force = kp * (target - q) - kd * qdot, clipped to a force limit) evaluated at every
+physics step, while the policy sets the targets at the control rate (30 Hz). With the
+`implicitfast` integrator the damping term is integrated implicitly, which keeps the stiff
+gains stable at dt = 1/120 s.
+
+The `puppet` variant (see `detach.envs.puppet`) replaces the free root joint with actuated
+slides (x, y, z) and a yaw hinge, and compensates gravity on its own bodies.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+START_HEIGHT = 0.94
+"""Pelvis height in metres at which episodes start (feet ~5 mm above the floor)."""
+
+STAND_HEIGHT = 0.935
+"""Pelvis height in metres of the default pose standing on flat ground (sole at z = 0)."""
+
+FLOOR_TO_SOLE = 0.935
+"""Distance from the pelvis origin to the sole at the default pose, metres."""
+
+HUMANOID_GEOM_GROUP = 1
+"""Geom group of the character's geoms (rays for height maps exclude it)."""
+
+
+@dataclass(frozen=True)
+class JointGroup:
+    """One controllable joint: a 1-DoF hinge or three hinges about local x, y, z."""
+
+    name: str
+    body: str
+    axes: str
+    """Subset of "xyz": the hinge axes, in the body frame."""
+    ranges: tuple[tuple[float, float], ...]
+    """Range in radians of each hinge, in the order of `axes`."""
+    kp: float
+    kd: float
+    max_force: float
+    """Actuator force limit, N m."""
+
+
+def _sym(a: float) -> tuple[float, float]:
+    return (-a, a)
+
+
+_KNEE = (_sym(np.deg2rad(5.6)), (0.0, np.deg2rad(160.0)), _sym(np.deg2rad(5.6)))
+
+JOINT_GROUPS: tuple[JointGroup, ...] = (
+    JointGroup("abdomen", "torso", "xyz", (_sym(0.6), (-0.8, 1.2), _sym(0.8)), 600, 60, 250),
+    JointGroup("neck", "head", "xyz", (_sym(0.8), _sym(0.8), _sym(1.2)), 150, 15, 60),
+    JointGroup("right_shoulder", "right_upper_arm", "xyz",
+               ((-3.0, 0.5), (-3.1, 1.0), _sym(1.5)), 300, 30, 120),
+    JointGroup("right_elbow", "right_lower_arm", "y", ((-2.6, 0.0),), 200, 20, 80),
+    JointGroup("left_shoulder", "left_upper_arm", "xyz",
+               ((-0.5, 3.0), (-3.1, 1.0), _sym(1.5)), 300, 30, 120),
+    JointGroup("left_elbow", "left_lower_arm", "y", ((-2.6, 0.0),), 200, 20, 80),
+    JointGroup("right_hip", "right_thigh", "xyz", (_sym(1.0), (-2.4, 0.9), _sym(1.0)), 500, 50, 250),
+    JointGroup("right_knee", "right_shin", "xyz", _KNEE, 500, 50, 200),
+    JointGroup("right_ankle", "right_foot", "xyz", (_sym(0.6), _sym(1.0), _sym(0.6)), 300, 30, 120),
+    JointGroup("left_hip", "left_thigh", "xyz", (_sym(1.0), (-2.4, 0.9), _sym(1.0)), 500, 50, 250),
+    JointGroup("left_knee", "left_shin", "xyz", _KNEE, 500, 50, 200),
+    JointGroup("left_ankle", "left_foot", "xyz", (_sym(0.6), _sym(1.0), _sym(0.6)), 300, 30, 120),
+)
+"""The 12 controllable joints (32 hinges) in actuator/DoF order."""
+
+BODY_NAMES: tuple[str, ...] = (
+    "pelvis", "torso", "head",
+    "right_upper_arm", "right_lower_arm", "right_hand",
+    "left_upper_arm", "left_lower_arm", "left_hand",
+    "right_thigh", "right_shin", "right_foot",
+    "left_thigh", "left_shin", "left_foot",
+)
+"""The 15 rigid bodies in kinematic-tree (MuJoCo body id) order; index 0 is the root."""
+
+KEY_BODIES: tuple[str, ...] = ("right_hand", "left_hand", "right_foot", "left_foot")
+"""Bodies whose positions enter the AMP observation."""
+
+DOF_NAMES: tuple[str, ...] = tuple(f"{g.name}_{a}" for g in JOINT_GROUPS for a in g.axes)
+"""Names of the 32 hinges (MuJoCo joint names), e.g. `right_knee_y`."""
+
+NUM_DOF = len(DOF_NAMES)
+
+
+def dof_ranges() -> np.ndarray:
+    """[32, 2] hinge ranges in radians, DoF order."""
+    return np.array([r for g in JOINT_GROUPS for r in g.ranges], dtype=np.float64)
+
+
+def dof_gains() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(kp [32], kd [32], force limit [32]) of the PD actuators, DoF order."""
+    kp = np.array([g.kp for g in JOINT_GROUPS for _ in g.axes], dtype=np.float64)
+    kd = np.array([g.kd for g in JOINT_GROUPS for _ in g.axes], dtype=np.float64)
+    fmax = np.array([g.max_force for g in JOINT_GROUPS for _ in g.axes], dtype=np.float64)
+    return kp, kd, fmax
+
+
+def joint_group_slices() -> list[tuple[str, slice]]:
+    """(joint name, slice into the 32 DoF) per controllable joint."""
+    out, i = [], 0
+    for g in JOINT_GROUPS:
+        out.append((g.name, slice(i, i + len(g.axes))))
+        i += len(g.axes)
+    return out
+
+
+# --- geometry ----------------------------------------------------------------------------
+# Each body: (name, parent, position in the parent frame, geoms). A geom is
+# (type, size, fromto or pos); sizes in metres. Values are our own, sized so that leg
+# length (pelvis origin to sole) is 0.935 m and the standing height is about 1.62 m.
+
+_CAP, _SPH, _BOX = mujoco.mjtGeom.mjGEOM_CAPSULE, mujoco.mjtGeom.mjGEOM_SPHERE, mujoco.mjtGeom.mjGEOM_BOX
+
+_BODIES: tuple[tuple[str, str, tuple[float, float, float], tuple], ...] = (
+    ("torso", "pelvis", (0.0, 0.0, 0.12),
+     ((_CAP, (0.11,), ((0.0, 0.0, 0.03), (0.0, 0.0, 0.17))),
+      (_CAP, (0.08,), ((-0.01, -0.09, 0.24), (-0.01, 0.09, 0.24))))),
+    ("head", "torso", (0.0, 0.0, 0.34), ((_SPH, (0.095,), (0.0, 0.0, 0.13)),)),
+    ("right_upper_arm", "torso", (-0.01, -0.2, 0.25),
+     ((_CAP, (0.045,), ((0.0, 0.0, -0.04), (0.0, 0.0, -0.24))),)),
+    ("right_lower_arm", "right_upper_arm", (0.0, 0.0, -0.28),
+     ((_CAP, (0.04,), ((0.0, 0.0, -0.03), (0.0, 0.0, -0.2))),)),
+    ("right_hand", "right_lower_arm", (0.0, 0.0, -0.25), ((_SPH, (0.04,), (0.0, 0.0, 0.0)),)),
+    ("left_upper_arm", "torso", (-0.01, 0.2, 0.25),
+     ((_CAP, (0.045,), ((0.0, 0.0, -0.04), (0.0, 0.0, -0.24))),)),
+    ("left_lower_arm", "left_upper_arm", (0.0, 0.0, -0.28),
+     ((_CAP, (0.04,), ((0.0, 0.0, -0.03), (0.0, 0.0, -0.2))),)),
+    ("left_hand", "left_lower_arm", (0.0, 0.0, -0.25), ((_SPH, (0.04,), (0.0, 0.0, 0.0)),)),
+    ("right_thigh", "pelvis", (0.0, -0.09, -0.03),
+     ((_CAP, (0.06,), ((0.0, 0.0, -0.05), (0.0, 0.0, -0.37))),)),
+    ("right_shin", "right_thigh", (0.0, 0.0, -0.42),
+     ((_CAP, (0.05,), ((0.0, 0.0, -0.04), (0.0, 0.0, -0.35))),)),
+    ("right_foot", "right_shin", (0.0, 0.0, -0.41), ((_BOX, (0.1, 0.045, 0.0325), (0.045, 0.0, -0.0425)),)),
+    ("left_thigh", "pelvis", (0.0, 0.09, -0.03),
+     ((_CAP, (0.06,), ((0.0, 0.0, -0.05), (0.0, 0.0, -0.37))),)),
+    ("left_shin", "left_thigh", (0.0, 0.0, -0.42),
+     ((_CAP, (0.05,), ((0.0, 0.0, -0.04), (0.0, 0.0, -0.35))),)),
+    ("left_foot", "left_shin", (0.0, 0.0, -0.41), ((_BOX, (0.1, 0.045, 0.0325), (0.045, 0.0, -0.0425)),)),
+)
+_PELVIS_GEOMS = ((_CAP, (0.09,), ((0.0, -0.07, 0.0), (0.0, 0.07, 0.0))),)
+_AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
+
+
+def _add_geoms(body: mujoco.MjsBody, geoms: tuple, friction: float) -> None:
+    for gtype, size, where in geoms:
+        g = body.add_geom()
+        g.type = gtype
+        g.size[: len(size)] = size
+        if gtype == _CAP:
+            g.fromto = np.concatenate(where)
+        else:
+            g.pos = where
+        g.friction = (friction, 0.005, 0.0001)
+        g.group = HUMANOID_GEOM_GROUP
+        g.rgba = (0.75, 0.6, 0.45, 1.0)
+        g.density = 985.0  # human tissue, kg/m^3
+
+
+def add_humanoid(
+    parent: mujoco.MjsBody,
+    spec: mujoco.MjSpec,
+    puppet: bool = False,
+    friction: float = 1.0,
+    armature: float = 0.08,
+) -> mujoco.MjsBody:
+    """Add the character's bodies, hinges and PD actuators under `parent`; return the pelvis.
+
+    The root joint is a free joint for the humanoid; the puppet's root joints and actuators
+    are added by `detach.envs.puppet.add_root_actuation` (called here) so that both share
+    this one body definition. Actuators are added to `spec` in `DOF_NAMES` order, before any
+    root actuator, so `ctrl[:32]` are always the hinge PD targets.
+    """
+    pelvis = parent.add_body(name="pelvis", pos=(0.0, 0.0, START_HEIGHT))
+    if puppet:
+        from detach.envs.puppet import add_root_joints
+
+        add_root_joints(pelvis)
+    else:
+        pelvis.add_freejoint(name="root")
+    _add_geoms(pelvis, _PELVIS_GEOMS, friction)
+    # An accelerometer makes MuJoCo run mj_rnePostConstraint, which fills cfrc_ext (contact
+    # forces per body) for the backend's contact view; it costs O(nbody).
+    pelvis.add_site(name="imu")
+    spec.add_sensor(name="pelvis_acc", type=mujoco.mjtSensor.mjSENS_ACCELEROMETER,
+                    objtype=mujoco.mjtObj.mjOBJ_SITE, objname="imu")
+    bodies = {"pelvis": pelvis}
+    for name, par, pos, geoms in _BODIES:
+        b = bodies[par].add_body(name=name, pos=pos)
+        bodies[name] = b
+        _add_geoms(b, geoms, friction)
+    for g in JOINT_GROUPS:
+        for axis, rng in zip(g.axes, g.ranges):
+            j = bodies[g.body].add_joint(name=f"{g.name}_{axis}")
+            j.type = mujoco.mjtJoint.mjJNT_HINGE
+            j.axis = _AXES[axis]
+            j.range = rng
+            j.limited = mujoco.mjtLimited.mjLIMITED_TRUE
+            j.armature = armature
+    for g in JOINT_GROUPS:
+        for axis, rng in zip(g.axes, g.ranges):
+            a = spec.add_actuator(name=f"{g.name}_{axis}", target=f"{g.name}_{axis}")
+            a.trntype = mujoco.mjtTrn.mjTRN_JOINT
+            a.gaintype = mujoco.mjtGain.mjGAIN_FIXED
+            a.biastype = mujoco.mjtBias.mjBIAS_AFFINE
+            a.gainprm[0] = g.kp
+            a.biasprm[:3] = (0.0, -g.kp, -g.kd)
+            a.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+            a.ctrlrange = rng
+            a.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
+            a.forcerange = (-g.max_force, g.max_force)
+    if puppet:
+        from detach.envs.puppet import add_root_actuators
+
+        for b in bodies.values():
+            b.gravcomp = 1.0
+        add_root_actuators(spec)
+    return pelvis
+
+
+def configure_options(spec: mujoco.MjSpec, physics_dt: float, iterations: int) -> None:
+    """Simulation options shared by every model of the project (units: seconds)."""
+    spec.option.timestep = physics_dt
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    spec.option.iterations = max(int(iterations), 1)
+    spec.option.ls_iterations = 8
+    spec.compiler.autolimits = True
+    spec.compiler.degree = False  # every angle in this project is in radians
+
+
+def build_humanoid_spec(
+    character: str = "humanoid",
+    physics_dt: float = 1.0 / 120.0,
+    iterations: int = 4,
+    friction: float = 1.0,
+    with_floor: bool = True,
+) -> mujoco.MjSpec:
+    """A stand-alone spec: the character (humanoid or puppet) on a floor plane."""
+    if character not in ("humanoid", "puppet"):
+        raise ValueError(f"character: expected 'humanoid' or 'puppet', got {character!r}")
+    spec = mujoco.MjSpec()
+    spec.modelname = character
+    configure_options(spec, physics_dt, iterations)
+    if with_floor:
+        add_floor(spec, friction)
+    add_humanoid(spec.worldbody, spec, puppet=character == "puppet", friction=friction)
+    return spec
+
+
+def add_floor(spec: mujoco.MjSpec, friction: float = 1.0, size: float = 0.0) -> mujoco.MjsGeom:
+    """An infinite floor plane at z = 0 (size 0 = infinite), plus a light."""
+    g = spec.worldbody.add_geom(name="floor")
+    g.type = mujoco.mjtGeom.mjGEOM_PLANE
+    g.size = (size, size, 0.05)
+    g.friction = (friction, 0.005, 0.0001)
+    g.rgba = (0.55, 0.6, 0.65, 1.0)
+    g.group = 0
+    spec.worldbody.add_light(pos=(0.0, 0.0, 6.0), dir=(0.0, 0.0, -1.0), type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL)
+    return g
+
+
+def build_humanoid_model(character: str = "humanoid", **kw) -> mujoco.MjModel:
+    """Compile `build_humanoid_spec`; a convenience for tests and benchmarks."""
+    return build_humanoid_spec(character, **kw).compile()

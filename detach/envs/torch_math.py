@@ -1,0 +1,123 @@
+"""Batched rotation math on torch tensors. Quaternions are wxyz, as MuJoCo stores them.
+
+Heading frame: the world frame rotated about +Z by the root's yaw (the character faces +X),
+so that observations do not depend on where the character looks in the world.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+
+def quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Hamilton product a * b of wxyz quaternions [..., 4]."""
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack((
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    ), dim=-1)
+
+
+def quat_conj(q: torch.Tensor) -> torch.Tensor:
+    return torch.cat((q[..., :1], -q[..., 1:]), dim=-1)
+
+
+def quat_rotate(q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """Rotate vectors v [..., 3] by unit quaternions q [..., 4] (wxyz)."""
+    w, xyz = q[..., :1], q[..., 1:]
+    t = 2.0 * torch.cross(xyz, v, dim=-1)
+    return v + w * t + torch.cross(xyz, t, dim=-1)
+
+
+def quat_rotate_inverse(q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """Rotate vectors v by the inverse of q (world -> local frame of q)."""
+    return quat_rotate(quat_conj(q), v)
+
+
+def yaw_of(q: torch.Tensor) -> torch.Tensor:
+    """Heading angle (rad) of the body's +X axis projected on the ground, wxyz input."""
+    w, x, y, z = q.unbind(-1)
+    return torch.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def quat_from_yaw(yaw: torch.Tensor) -> torch.Tensor:
+    """Rotation about +Z by yaw radians, wxyz [..., 4]."""
+    h = 0.5 * yaw
+    zero = torch.zeros_like(h)
+    return torch.stack((torch.cos(h), zero, zero, torch.sin(h)), dim=-1)
+
+
+def rotate_yaw_inverse(yaw: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """World vectors v [..., 3] (or [..., 2]) expressed in the heading frame of yaw [...].
+
+    yaw must broadcast against v's leading dimensions.
+    """
+    c, s = torch.cos(yaw), torch.sin(yaw)
+    x, y = v[..., 0], v[..., 1]
+    xy = torch.stack((c * x + s * y, -s * x + c * y), dim=-1)
+    return torch.cat((xy, v[..., 2:]), dim=-1)
+
+
+def rotate_yaw(yaw: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """Heading-frame vectors v [..., 2|3] back to the world frame."""
+    return rotate_yaw_inverse(-yaw, v)
+
+
+def quat_to_tan_norm(q: torch.Tensor) -> torch.Tensor:
+    """6-D continuous rotation encoding: the rotated +X (tangent) and +Z (normal) axes."""
+    ex = torch.zeros(q.shape[:-1] + (3,), dtype=q.dtype, device=q.device)
+    ez = torch.zeros_like(ex)
+    ex[..., 0] = 1.0
+    ez[..., 2] = 1.0
+    return torch.cat((quat_rotate(q, ex), quat_rotate(q, ez)), dim=-1)
+
+
+def wrap_angle(a: torch.Tensor) -> torch.Tensor:
+    """Angle(s) wrapped to [-pi, pi)."""
+    return torch.remainder(a + math.pi, 2.0 * math.pi) - math.pi
+
+
+def box_corners(pos: torch.Tensor, quat: torch.Tensor, half: torch.Tensor) -> torch.Tensor:
+    """World corners [..., 8, 3] of oriented boxes (centre [..., 3], wxyz [..., 4], half [..., 3])."""
+    signs = torch.tensor([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)],
+                         dtype=pos.dtype, device=pos.device)
+    local = signs * half[..., None, :]
+    return pos[..., None, :] + quat_rotate(quat[..., None, :].expand(local.shape[:-1] + (4,)), local)
+
+
+def heading_matrix(yaw: torch.Tensor) -> torch.Tensor:
+    """[N, 3, 3] rotation about +Z by yaw: world = R @ heading. World row vectors v [N, M, 3]
+    are expressed in the heading frame by one batched product, `v @ R`."""
+    c, s = torch.cos(yaw), torch.sin(yaw)
+    z, o = torch.zeros_like(c), torch.ones_like(c)
+    return torch.stack((c, -s, z, s, c, z, z, z, o), dim=-1).reshape(*yaw.shape, 3, 3)
+
+
+def quat_axes_xz(q: torch.Tensor) -> torch.Tensor:
+    """The rotated +X and +Z axes [..., 6] of wxyz quaternions (= `quat_to_tan_norm`), closed form."""
+    w, x, y, z = q.unbind(-1)
+    return torch.stack((1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y),
+                        2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)), dim=-1)
+
+
+def quat_to_matrix(q: torch.Tensor) -> torch.Tensor:
+    """[..., 3, 3] rotation matrices of wxyz quaternions (columns = rotated axes)."""
+    w, x, y, z = q.unbind(-1)
+    m = torch.stack((1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+                     2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+                     2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)), dim=-1)
+    return m.reshape(*q.shape[:-1], 3, 3)
+
+
+_CORNER_SIGNS = torch.tensor([[sx, sy, sz] for sx in (-1.0, 1.0) for sy in (-1.0, 1.0) for sz in (-1.0, 1.0)])
+
+
+def box_corners_fast(pos: torch.Tensor, quat: torch.Tensor, half: torch.Tensor) -> torch.Tensor:
+    """As `box_corners` for [N, 3] boxes ([N, 8, 3]), with one batched matrix product."""
+    local = _CORNER_SIGNS.to(pos.device) * half[:, None, :]
+    return pos[:, None, :] + local @ quat_to_matrix(quat).transpose(-1, -2)

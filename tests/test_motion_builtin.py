@@ -1,0 +1,94 @@
+"""Built-in synthetic clips: generated fast and deterministically, kinematically plausible."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from detach.envs.humanoid import BODY_NAMES, dof_ranges
+from detach.motion import builtin
+from detach.motion.kinematics import humanoid_fk
+from detach.motion.plausibility import check_clip, foot_clearance
+from detach.motion.skills import SKILL_GROUPS, SKILLS
+
+
+@pytest.fixture(scope="module")
+def clips():
+    builtin._builtin.cache_clear()
+    t0 = time.perf_counter()
+    out = builtin.builtin_clips()
+    elapsed = time.perf_counter() - t0
+    assert elapsed < 5.0, f"generating the built-in clips took {elapsed:.1f} s"
+    return {c.name: c for c in out}
+
+
+def test_labels_cover_every_task_group(clips):
+    labels = {c.skill for c in clips.values()}
+    assert labels == set(SKILLS)
+    assert set(SKILL_GROUPS) == {"traj", "carry", "climb", "sit"}
+    assert all(set(v) <= labels for v in SKILL_GROUPS.values())
+    assert all(c.meta["synthetic"] for c in clips.values())
+
+
+def test_deterministic(clips):
+    again = builtin._RECIPES[2]()  # walk_1p42, regenerated from scratch
+    ref = clips[again.name]
+    np.testing.assert_array_equal(again.dof_pos, ref.dof_pos)
+    np.testing.assert_array_equal(again.body_pos, ref.body_pos)
+
+
+def test_body_positions_are_mujoco_fk(clips):
+    c = clips["step_up_0p30"]
+    fk = humanoid_fk().run(c.root_pos, c.root_quat, c.dof_pos)
+    np.testing.assert_allclose(fk.body_pos, c.body_pos, atol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["idle_breathe", "idle_shift", "walk_1p42", "walk_1p48", "turn_left_90",
+                                  "turn_right_90", "walk_turn_left", "walk_turn_right", "step_up_0p30",
+                                  "step_up_0p45", "sit_down", "sit_stand_up", "carry_walk", "carry_stand"])
+def test_plausible(clips, name):
+    c = clips[name]
+    p = check_clip(c)
+    assert p.lowest_foot > -0.01, p           # no foot ever in the floor / step
+    assert p.max_support_gap < 0.02, p        # a foot is on its support in every frame
+    assert p.range_violation == 0.0, p        # within dof_ranges()
+    assert p.min_self_distance > 0.0, p       # no limb interpenetration (hands vs torso/thighs, ...)
+    assert p.min_prop_distance > -0.005, p    # nothing but the feet inside the step / seat
+    assert p.foot_skate < 0.5, p              # planted feet do not slide (m/s)
+    rng = dof_ranges()
+    assert (c.dof_pos >= rng[:, 0] - 1e-9).all() and (c.dof_pos <= rng[:, 1] + 1e-9).all()
+
+
+def test_walking_speed_and_stance(clips):
+    for name in ("walk_1p42", "walk_1p48"):
+        c = clips[name]
+        speed = np.linalg.norm(c.root_pos[-1, :2] - c.root_pos[0, :2]) / c.duration
+        assert 1.4 <= speed <= 1.5, (name, speed)
+        assert abs(c.root_pos[-1, 1]) < 0.01  # straight ahead (+X)
+        clear = foot_clearance(c)
+        assert (clear.min(axis=1) < 0.02).all()  # the stance foot is on the ground in every frame
+        assert (clear.max(axis=0) > 0.1).all()   # and each foot swings clear of it
+    turn = clips["turn_left_90"]
+    yaw = 2 * np.arctan2(turn.root_quat[:, 3], turn.root_quat[:, 0])
+    assert yaw[-1] - yaw[0] == pytest.approx(np.pi / 2, abs=1e-3)
+
+
+def test_sit_and_step_targets(clips):
+    sit = clips["sit_down"]
+    seat_top = sit.meta["props"][0]["center"][2] + sit.meta["props"][0]["half"][2]
+    assert seat_top == pytest.approx(0.45)
+    assert sit.root_pos[-1, 2] == pytest.approx(seat_top + 0.1, abs=0.01)  # pelvis 0.1 m above the seat
+    step = clips["step_up_0p45"]
+    feet = step.body_pos[-1, [BODY_NAMES.index("left_foot"), BODY_NAMES.index("right_foot")], 2]
+    assert feet == pytest.approx([0.45 + 0.075] * 2, abs=0.005)  # both ankles above the step top
+
+
+def test_default_motion_lib(clips):
+    lib = builtin.default_motion_lib("cpu")
+    assert lib.num_clips == len(clips)
+    ids, w = lib.sample_windows(32, steps=10, skills=SKILL_GROUPS["climb"])
+    assert set(lib.clip_skill[ids].tolist()) <= {SKILLS.index("step_up"), SKILLS.index("walk")}
+    assert w.key_body_pos.shape == (32, 10, 4, 3) and torch.isfinite(w.dof_vel).all()
