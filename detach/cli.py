@@ -1,32 +1,39 @@
-"""`detach-run`: resolve a task + model configuration and run it.
+"""`detach-run`: train, evaluate, resume and sweep runs; list runs; print the paper's tables.
 
-User errors (bad config, bad flag) print one line and exit with code 2; tracebacks are
-reserved for bugs.
+User errors (bad config, bad flag, missing file) print one line and exit with code 2;
+tracebacks are reserved for bugs (and go to the run's stdout.log).
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 from typing import Sequence
 
 from detach.config import ConfigError, dump, resolve
-from detach.config_schema import RunConfig
+from detach.runs.folder import RunFolder, run_folder_name
 
 EXIT_USAGE = 2
 
 DESCRIPTION = """\
-Run a task of the DETACH study with one model.
+Run the DETACH study: train a model on a task, evaluate it, resume it, sweep a grid.
 
+  detach-run configs/tasks/lh1.yaml --model detach            train, then evaluate
   detach-run configs/tasks/lh3.yaml --model ablation_a1 --dry-run
-  detach-run configs/tasks/follow.yaml --model detach env.character=puppet train.max_iterations=50
+  detach-run configs/tasks/follow.yaml --model mlp env.character=puppet train.max_iterations=50
+  detach-run --resume runs/20261123-120000-lh1-detach-s0
+  detach-run --eval runs/20261123-120000-lh1-detach-s0 --task configs/tasks/lh2.yaml
+  detach-run --sweep configs/sweeps/table3_ablation.yaml --quick --jobs 2
+  detach-run list                                             table of runs
+  detach-run table configs/sweeps/table1.yaml                 the paper's table from eval.json files
 
 TASK_YAML is a file under configs/tasks/ (follow, carry, climb, sit, lh1, lh2, lh3).
 --model takes a name from configs/models/ (detach, ablation_a1, ablation_a2, tokenhsi, cml,
 mlp) or a path to a model YAML. Overrides are key.path=value with YAML values, e.g.
 sim.num_envs=16, scene[0].pos3d=[1,2,0.35]; +key.path=value adds a key that does not exist.
+Every run is a folder runs/<YYYYmmdd-HHMMSS>-<task>-<model>-s<seed>/ with config.yaml,
+status.json, stdout.log, log.mcap, checkpoints/ and eval.json.
 """
 
 
@@ -34,7 +41,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="detach-run", description=DESCRIPTION,
         formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("task", metavar="TASK_YAML", help="task configuration file")
+    parser.add_argument("task", metavar="TASK_YAML", nargs="?",
+                        help="task configuration file (not with --resume/--eval/--sweep)")
     parser.add_argument("overrides", nargs="*", metavar="key=value",
                         help="config overrides (YAML values); +key=value adds a new key")
     parser.add_argument("--model", default="detach",
@@ -48,13 +56,54 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--dry-run", action="store_true",
                         help="resolve and print the config and the run folder it would "
                              "create, then exit")
+    mode = parser.add_mutually_exclusive_group()
+    mode.add_argument("--resume", type=Path, metavar="RUN_DIR",
+                      help="continue an interrupted or failed run from its latest checkpoint")
+    mode.add_argument("--eval", type=Path, metavar="RUN_DIR|CKPT",
+                      help="evaluate a run's latest checkpoint (or the given checkpoint)")
+    mode.add_argument("--sweep", type=Path, metavar="SWEEP_YAML",
+                      help="run every unfinished cell of a sweep (configs/sweeps/)")
+    parser.add_argument("--task", dest="eval_task", type=Path, metavar="TASK_YAML",
+                        help="with --eval: the task to evaluate on (default: the run's task); "
+                             "a policy trained on LH1 evaluated on LH2/LH3 is the paper's "
+                             "environment-generalisation experiment")
+    parser.add_argument("--eval-on", action="append", type=Path, default=[],
+                        metavar="TASK_YAML",
+                        help="after training, also evaluate on this task (repeatable)")
+    parser.add_argument("--trials", type=int, default=None,
+                        help="evaluation episodes (default: eval.trials of the config, 100)")
+    parser.add_argument("--no-eval", action="store_true",
+                        help="train only; skip the evaluation at the end")
+    parser.add_argument("--quick", action="store_true",
+                        help="with --sweep: use the sweep's quick preset (CPU smoke run)")
+    parser.add_argument("--jobs", type=int, default=1,
+                        help="with --sweep: cells run in parallel (default: 1)")
+    parser.add_argument("--cell", help=argparse.SUPPRESS)
     return parser
 
 
-def run_folder_name(cfg: RunConfig, now: float | None = None) -> str:
-    """runs/<YYYYmmdd-HHMMSS>-<task>-<model>-s<seed> (the run folder contract)."""
-    stamp = time.strftime("%Y%m%d-%H%M%S", time.localtime(now))
-    return f"{stamp}-{cfg.task_name}-{cfg.model_name}-s{cfg.seed}"
+def build_list_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="detach-run list",
+                                     description="Print a table of the runs in a folder.")
+    parser.add_argument("runs", type=Path, nargs="?", default=Path("runs"),
+                        help="runs folder (default: runs/)")
+    return parser
+
+
+def build_table_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="detach-run table",
+        description="Print the paper's table (Markdown) from eval.json files and write CSV "
+                    "and LaTeX beside it.")
+    parser.add_argument("source", type=Path, metavar="SWEEP_OR_RUNS",
+                        help="a sweep YAML (its table kind and cells) or a runs folder")
+    parser.add_argument("--runs", type=Path, default=Path("runs"),
+                        help="runs folder holding a sweep's cells (default: runs/)")
+    parser.add_argument("--kind", choices=["skills", "generalization", "ablation"],
+                        help="table layout (default: the sweep's, or all three for a folder)")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="folder for the .md/.csv/.tex files (default: <runs>/tables/)")
+    return parser
 
 
 def check_device(device: str) -> None:
@@ -70,26 +119,98 @@ def check_device(device: str) -> None:
                           f"(torch {torch.__version__}); use --device cpu")
 
 
+def _fail(exc: Exception) -> int:
+    print(f"detach-run: error: {exc}", file=sys.stderr)
+    return EXIT_USAGE
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_intermixed_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
     try:
-        if not Path(args.task).exists():
-            raise ConfigError("task file not found", args.task)
+        if argv and argv[0] == "list":
+            from detach.runs.listing import print_runs
+
+            return print_runs(build_list_parser().parse_args(argv[1:]).runs)
+        if argv and argv[0] == "table":
+            from detach.runs.tables_cli import print_table
+
+            args = build_table_parser().parse_args(argv[1:])
+            return print_table(args.source, args.runs, args.kind, args.out)
+        args = build_parser().parse_intermixed_args(argv)
         check_device(args.device)
-        cfg = resolve(args.task, args.model, args.overrides, seed=args.seed,
-                      device=args.device)
+        if args.sweep:
+            from detach.runs.sweep import run_sweep
+
+            failed = run_sweep(args.sweep, args.out, args.jobs, args.quick, args.device)
+            return 1 if failed else 0
+        if args.resume:
+            return _resume(args)
+        if args.eval:
+            return _evaluate(args)
+        return _train(args)
     except ConfigError as exc:
-        print(f"detach-run: error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
-    folder = args.out / run_folder_name(cfg)
+        return _fail(exc)
+
+
+def _train(args: argparse.Namespace) -> int:
+    if args.task is None:
+        raise ConfigError("missing TASK_YAML (or use --resume, --eval, --sweep, list, table)")
+    if not Path(args.task).exists():
+        raise ConfigError("task file not found", args.task)
+    for extra in args.eval_on:
+        if not extra.exists():
+            raise ConfigError("task file not found (--eval-on)", str(extra))
+    cfg = resolve(args.task, args.model, args.overrides, seed=args.seed, device=args.device)
     if args.dry_run:
         sys.stdout.write(dump(cfg))
-        print(f"# run folder: {folder}")
+        print(f"# run folder: {args.out / run_folder_name(cfg)}")
         return 0
-    print("detach-run: error: training is not available in this version yet; "
-          "use --dry-run to check a configuration", file=sys.stderr)
-    return EXIT_USAGE
+    from detach.runs.job import run_job
+    from detach.train.session import train_and_evaluate
+
+    run = RunFolder.create(args.out, cfg)
+    if args.cell:
+        run.set_state("queued", cell=args.cell)
+    print(f"run folder: {run.path}")
+    code = run_job(run, lambda r: train_and_evaluate(
+        r, resume=False, eval_tasks=args.eval_on, trials=args.trials, evaluate=not args.no_eval))
+    print(f"run folder: {run.path}")
+    return code
+
+
+def _resume(args: argparse.Namespace) -> int:
+    run = RunFolder(args.resume)
+    if not run.config_path.exists():
+        raise ConfigError("not a run folder (no config.yaml)", str(args.resume))
+    if run.latest_checkpoint() is None:
+        raise ConfigError("run has no checkpoint to resume from", str(args.resume))
+    run.config()  # validates the stored config as a user error, not a traceback
+    from detach.runs.job import run_job
+    from detach.train.session import train_and_evaluate
+
+    print(f"resuming {run.path} from {run.latest_checkpoint().name}")
+    return run_job(run, lambda r: train_and_evaluate(
+        r, resume=True, eval_tasks=args.eval_on, trials=args.trials, evaluate=not args.no_eval,
+        device=args.device))
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    target = args.eval
+    if not target.exists():
+        raise ConfigError("run folder or checkpoint not found", str(target))
+    checkpoint = target if target.is_file() else None
+    run = RunFolder(target.parent.parent if checkpoint else target)
+    if not run.config_path.exists():
+        raise ConfigError("not a run folder (no config.yaml)", str(run.path))
+    if checkpoint is None and run.latest_checkpoint() is None:
+        raise ConfigError("run has no checkpoint to evaluate", str(run.path))
+    if args.eval_task is not None and not args.eval_task.exists():
+        raise ConfigError("task file not found (--task)", str(args.eval_task))
+    from detach.train.session import evaluate_run
+
+    path = evaluate_run(run, args.eval_task, checkpoint, args.trials, device=args.device)
+    print(f"evaluation written to {path}")
+    return 0
 
 
 if __name__ == "__main__":

@@ -116,3 +116,13 @@ def test_live_log_is_readable_before_close(tmp_path: Path) -> None:
     assert [m["fps"] for m in read_metrics(path)] == [100.0, 120.0]
     log.close()
     assert json.loads(json.dumps(read_metrics(path)))[1]["iteration"] == 1
+
+
+def test_append_keeps_earlier_messages(tmp_path: Path) -> None:
+    path = tmp_path / "log.mcap"
+    _write_log(path, frames=4)
+    with RunLogWriter(path, append=True) as log:
+        log.log_metrics(5, {"reward/mean": 0.5})
+    assert [m["iteration"] for m in read_metrics(path)] == [0, 1, 2, 3, 4, 5]
+    assert read_scene(path)["objects"][0]["name"] == "box"
+    assert sum(len(v) for v in read_episodes(path).values()) == 4

@@ -24,6 +24,7 @@ run's log reads up to its last flush.
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import Any, BinaryIO, Iterator, Sequence
 
@@ -66,9 +67,13 @@ FOXGLOVE_FRAME_TRANSFORMS = {
 class RunLogWriter:
     """Append-only writer of a run's log.mcap (one writer per process)."""
 
-    def __init__(self, path: Path, flush_every: int = 30, mode: str = "wb") -> None:
+    def __init__(self, path: Path, flush_every: int = 30, append: bool = False) -> None:
+        """`append=True` keeps the messages of an existing log (a resumed run): MCAP files
+        cannot be appended to, so they are copied into a fresh file that replaces it."""
         self.path = Path(path)
-        self._file: BinaryIO = open(self.path, mode)
+        previous = list(iter_messages(self.path)) if append and self.path.exists() else []
+        tmp = self.path.with_name(f".{self.path.name}.tmp")
+        self._file: BinaryIO = open(tmp, "wb")
         self._writer = Writer(self._file, chunk_size=256 * 1024,
                               compression=CompressionType.ZSTD)
         self._writer.start(profile="", library="detach")
@@ -80,7 +85,11 @@ class RunLogWriter:
         self._frames_since_flush = 0
         self.flush_every = flush_every
         self._sequence = 0
+        for topic, time_ns, message in previous:
+            if topic in self._channels:
+                self._add(topic, message, time_ns)
         self._writer.flush()
+        os.replace(tmp, self.path)
 
     def _register(self, topic: str, name: str, schema: dict[str, Any]) -> int:
         schema_id = self._writer.register_schema(name=name, encoding="jsonschema",

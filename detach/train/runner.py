@@ -123,7 +123,8 @@ class DetachRunner(OnPolicyRunner):
                         reward_sum[done_ids] = 0
                         length[done_ids] = 0
                     for key, value in extras.get("log", {}).items():
-                        episode_logs.setdefault(key, []).append(float(value))
+                        values = value.flatten().tolist() if torch.is_tensor(value) else [value]
+                        episode_logs.setdefault(key, []).extend(float(v) for v in values)
                 collect_time = time.time() - t0
                 self.alg.compute_returns(obs)
             t1 = time.time()

@@ -1,0 +1,98 @@
+"""The motion library seen from training: AMP reference windows and reference-state resets.
+
+Reference windows are featurised with the env's own `amp_frame` (the single definition of
+an AMP frame), so the discriminator compares like with like. With task-specific
+discrimination a window's skill one-hot says which task's clip group (`SKILL_GROUPS`) it was
+drawn from; the skill of each sample is drawn uniformly over the tasks that have clips.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import torch
+import torch.nn.functional as F
+
+from detach.config_schema import SKILLS
+from detach.envs.observations import amp_frame
+from detach.envs.torch_math import heading_matrix, yaw_of
+from detach.motion import SKILL_GROUPS, MotionLib, MotionState
+
+
+def amp_features(state: MotionState) -> torch.Tensor:
+    """MotionState with batch shape [n, steps] -> flattened AMP windows [n, steps * d]."""
+    n, steps = state.root_pos.shape[:2]
+    flat = state.reshape_batch(n * steps)
+    frames = amp_frame(flat.root_pos, flat.root_quat, flat.root_lin_vel, flat.root_ang_vel,
+                       flat.dof_pos, flat.dof_vel, flat.key_body_pos)
+    return frames.reshape(n, -1)
+
+
+def amp_reference_sampler(lib: MotionLib, steps: int, dt: float, conditional: bool = True,
+                          device: str | torch.device = "cpu"
+                          ) -> Callable[[int], tuple[torch.Tensor, torch.Tensor]]:
+    """fn(n) -> (AMP windows [n, steps * d], skill one-hot [n, len(SKILLS)])."""
+    tasks = [i for i, skill in enumerate(SKILLS)
+             if any(label in lib.skills_present for label in SKILL_GROUPS[skill])]
+
+    def sample(n: int) -> tuple[torch.Tensor, torch.Tensor]:
+        if conditional:
+            picks = torch.tensor(tasks)[torch.randint(len(tasks), (n,))]
+            parts, onehots = [], []
+            for task in picks.unique().tolist():
+                k = int((picks == task).sum())
+                _ids, state = lib.sample_windows(k, steps=steps, dt=dt, skills=SKILLS[task])
+                parts.append(amp_features(state))
+                onehots.append(F.one_hot(torch.full((k,), task), len(SKILLS)).float())
+            windows, cond = torch.cat(parts), torch.cat(onehots)
+        else:
+            _ids, state = lib.sample_windows(n, steps=steps, dt=dt)
+            windows, cond = amp_features(state), torch.zeros(n, len(SKILLS))
+        return windows.to(device), cond.to(device)
+
+    return sample
+
+
+def reset_reference_sampler(lib: MotionLib) -> Callable[[int, torch.Generator], dict]:
+    """Reference-state initialisation source in the format `detach.envs.resets` expects."""
+
+    def sample(n: int, generator: torch.Generator) -> dict[str, torch.Tensor]:
+        ids = lib.sample_clips(n, generator=generator)
+        times = lib.sample_times(ids, generator=generator)
+        s = lib.state(ids, times)
+        R = heading_matrix(yaw_of(s.root_quat))
+        return {"root_height": s.root_pos[:, 2], "root_quat": s.root_quat,
+                "dof_pos": s.dof_pos, "dof_vel": s.dof_vel,
+                "root_lin_vel": (s.root_lin_vel[:, None] @ R)[:, 0],
+                "root_ang_vel": (s.root_ang_vel[:, None] @ R)[:, 0]}
+
+    return sample
+
+
+def amp_part_indices(parts: tuple[str, ...] | list[str], steps: int) -> dict[str, list[int]]:
+    """Feature indices of an AMP window per body part, for CML's body-part discriminators.
+
+    An AMP frame (`detach.envs.observations`) is: root height (1), root rotation (6), root
+    linear and angular velocity (6), hinge positions (32) and velocities (32), hand and foot
+    positions (12). Every part sees the root features; `upper` the abdomen, neck, shoulder
+    and elbow hinges and the hands; `lower` the hip, knee and ankle hinges and the feet.
+    """
+    from detach.envs.humanoid import DOF_NAMES, KEY_BODIES
+    from detach.envs.observations import AMP_DIM, NUM_DOF
+
+    upper_joints = ("abdomen", "neck", "right_shoulder", "right_elbow", "left_shoulder",
+                    "left_elbow")
+    root = list(range(13))
+    dof_base, vel_base, key_base = 13, 13 + NUM_DOF, 13 + 2 * NUM_DOF
+    out: dict[str, list[int]] = {}
+    for part in parts:
+        if part not in ("upper", "lower"):
+            raise ValueError(f"unknown AMP body part {part!r}; expected 'upper' or 'lower'")
+        want_upper = part == "upper"
+        dofs = [i for i, name in enumerate(DOF_NAMES)
+                if name.rsplit("_", 1)[0].startswith(upper_joints) == want_upper]
+        keys = [i for i, name in enumerate(KEY_BODIES) if name.endswith("hand") == want_upper]
+        frame = root + [dof_base + i for i in dofs] + [vel_base + i for i in dofs]
+        frame += [key_base + 3 * k + j for k in keys for j in range(3)]
+        out[part] = [step * AMP_DIM + i for step in range(steps) for i in frame]
+    return out
