@@ -116,6 +116,12 @@ class EnvCfg:
     task_specific_discrimination: bool = True
     height_map: HeightMapCfg = HeightMapCfg()
     trajectory: TrajectoryGenCfg = TrajectoryGenCfg()
+    climb_pelvis_height: float = 0.9
+    """Climb target = the object's climb point (top surface) raised by this much (m): a
+    standing pelvis; `climb` succeeds with the pelvis at or above it (within the threshold)."""
+    follow_on_path_frac: float = 0.9
+    """A follow subtask succeeds when its end is reached and the pelvis was within
+    `success_threshold` of the path (XY) for at least this fraction of its steps."""
 
 
 @dataclass(frozen=True)

@@ -50,7 +50,10 @@ class AmpPPO(PPO):
         self.aux_loss_fn: AuxLossFn | None = None
         self.aux_updates = aux_updates
         self.stage = "ppo"
-        self.num_objectives = int(getattr(critic, "num_objectives", 1))
+        heads = tuple(getattr(critic, "value_objectives", ()) or ())
+        self.num_objectives = len(heads) if heads else int(getattr(critic, "num_objectives", 1))
+        if len(heads) > 1:
+            critic.sum_value_heads = False  # per-head values through PPO's value path
         obs = storage.observations
         amp_dim = obs["amp"].shape[-1] if self.amp_enabled else 0
         cond_dim = obs["task"].shape[-1] if (self.amp_enabled and self.conditional) else 0

@@ -19,6 +19,7 @@ from detach.config import load_task
 from detach.config_schema import RunConfig
 from detach.envs.lh_env import LHEnv, make_env
 from detach.eval.episodes import record_scene, run_evaluation
+from detach.models.losses import combine_aux_losses
 from detach.models.factory import DEFAULT_OBS_GROUPS, build_actor_critic, rsl_rl_model_cfgs
 from detach.motion import default_motion_lib
 from detach.runs.folder import RunFolder, atomic_write_json
@@ -96,14 +97,18 @@ def build_runner(cfg: RunConfig, run: RunFolder | None, device: str,
     runner.on_stage = on_stage
     if detach_models:
         def aux_loss(obs, stage: str):
+            """Weighted loss of the stage on both networks; every term logged per stage."""
             parts = {}
             total = torch.zeros((), device=device)
             for name, model in zip(("actor", "critic"), detach_models):
                 if stage == "pretrain":
                     model.update_normalization(obs)
-                loss = model.aux_loss(obs, stage)
+                terms = model.aux_losses(obs)
+                loss = combine_aux_losses(terms, stage, model.cfg.regularizers)
                 total = total + loss
-                parts[f"aux/{stage}/{name}"] = float(loss.detach())
+                parts[f"aux/{stage}/{name}/total"] = float(loss.detach())
+                parts.update({f"aux/{stage}/{name}/{k}": float(v.detach())
+                              for k, v in terms.items()})
             return total, parts
 
         alg.aux_loss_fn = aux_loss

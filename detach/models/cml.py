@@ -1,0 +1,37 @@
+"""CML baseline trunk: a GRU encodes the observation history; the critic has one value head per
+reward objective (the heads live in `rsl_rl_models.StructuredModel`, available to every kind).
+
+The GRU runs over the T self steps, each step's input being [self frame; env frame] (the env
+history resampled to T steps when its length differs). Its last hidden state, the task one-hot
+and any extra flat group (the privileged `critic` group) form the latent of the MLP head.
+The GRU only spans the observation window, so the model is not recurrent for rsl-rl
+(`is_recurrent = False`, no hidden state carried across env steps).
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn as nn
+
+from detach.config_schema import ModelCfg
+from detach.models.layout import ObsLayout, align_time
+
+
+class CMLTrunk(nn.Module):
+    """Named groups -> [h_T (gru_hidden); task; extras] [N, out_dim]."""
+
+    def __init__(self, layout: ObsLayout, cfg: ModelCfg) -> None:
+        super().__init__()
+        layout.require("self", "env", "task")
+        self.layout = layout
+        t_self, d_self = layout.history_shape("self")
+        _, d_env = layout.history_shape("env")
+        self.gru = nn.GRU(d_self + d_env, cfg.gru_hidden, batch_first=True)
+        self.out_dim = cfg.gru_hidden + layout.dim("task") + sum(layout.dim(g) for g in layout.extra_groups)
+
+    def forward(self, groups: dict[str, torch.Tensor]) -> torch.Tensor:
+        x_self = groups["self"]
+        x_env = align_time(groups["env"], x_self.shape[1])
+        _, h = self.gru(torch.cat([x_self, x_env], dim=-1))
+        parts = [h[-1], groups["task"]] + [groups[g] for g in self.layout.extra_groups]
+        return torch.cat(parts, dim=-1)

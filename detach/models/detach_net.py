@@ -1,0 +1,201 @@
+"""The DETACH trunk: dual encoders -> projections -> adaptive fusion -> shared transformer φ.
+
+Tokens of φ (our choice; the paper only says φ(f_fused)): one fused token per self-history step
+(T_self tokens, f_fused[t] = fusion of f_self[t] with the env sequence) + one task token
+(linear embedding of the skill one-hot) + one token per extra flat group (the privileged
+`critic` group in the critic), plus learned position embeddings. The output tokens are
+flattened into the latent [N, n_tokens * d_model] that the adapter MLP (policy or value head,
+in `rsl_rl_models`) consumes; flattening keeps which step each token came from.
+
+Ablations are switches: `use_env_encoder = False` (A1) drops Φ_env and Decoder_env and feeds
+env frames through P_env = Linear(d_env, d_model) directly; `use_self_encoder = False` (A2)
+likewise drops Φ_self, Decoder_self and f_pred. For an ablated stream z := f (the projection
+output), so the decoupling terms still act on what represents that stream.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import torch
+import torch.nn as nn
+
+from detach.config_schema import ModelCfg, RegularizerCfg
+from detach.models import losses as L
+from detach.models.attention import TransformerEncoder
+from detach.models.encoders import EnvEncoder, FrameDecoder, SelfEncoder, TemporalPredictor
+from detach.models.fusion import AdaptiveFusion, FusionOutput
+from detach.models.layout import ObsLayout
+
+
+class ParamAnchor(nn.Module):
+    """θ* of one encoder for R1/R2: buffer copies of its parameters.
+
+    Buffers (not parameters) so they are saved in checkpoints (stage 3 can resume) but never
+    optimised. `valid` is False until `store` is called.
+    """
+
+    def __init__(self, module: nn.Module) -> None:
+        super().__init__()
+        self._keys = [n.replace(".", "__") for n, _ in module.named_parameters()]
+        for key, (_, p) in zip(self._keys, module.named_parameters()):
+            self.register_buffer(key, p.detach().clone())
+        self.register_buffer("valid", torch.tensor(False))
+
+    def anchors(self) -> list[torch.Tensor]:
+        return [getattr(self, k) for k in self._keys]
+
+    @torch.no_grad()
+    def store(self, module: nn.Module) -> None:
+        for a, p in zip(self.anchors(), module.parameters(), strict=True):
+            a.copy_(p)
+        self.valid.fill_(True)
+
+
+@dataclass
+class DetachFeatures:
+    """Intermediates of one forward pass: z_* [N, T_*, z_dim], f_* [N, T_*, d_model]."""
+
+    z_env: torch.Tensor
+    z_self: torch.Tensor
+    f_env: torch.Tensor
+    f_self: torch.Tensor
+    fusion: FusionOutput
+
+
+class DetachTrunk(nn.Module):
+    """Named groups {self [N,T,d], env [N,T,d], task [N,S], extras [N,D]} -> latent [N, out_dim]."""
+
+    def __init__(self, layout: ObsLayout, cfg: ModelCfg) -> None:
+        super().__init__()
+        layout.require("self", "env", "task")
+        self.layout = layout
+        t_self, d_self = layout.history_shape("self")
+        _, d_env = layout.history_shape("env")
+        d, act = cfg.d_model, cfg.activation
+
+        self.env_encoder: EnvEncoder | None = None
+        self.env_decoder: FrameDecoder | None = None
+        if cfg.use_env_encoder:
+            self.env_encoder = EnvEncoder(d_env, cfg.env_encoder, act)
+            self.env_decoder = FrameDecoder(self.env_encoder.out_dim, d_env, cfg.env_encoder.decoder_hidden, act)
+        self.proj_env = nn.Linear(self.env_encoder.out_dim if self.env_encoder else d_env, d)
+
+        self.self_encoder: SelfEncoder | None = None
+        self.self_decoder: FrameDecoder | None = None
+        self.predictor: TemporalPredictor | None = None
+        if cfg.use_self_encoder:
+            sc = cfg.self_encoder
+            self.self_encoder = SelfEncoder(d_self, sc)
+            self.self_decoder = FrameDecoder(self.self_encoder.out_dim, d_self, sc.decoder_hidden, act)
+            self.predictor = TemporalPredictor(self.self_encoder.out_dim, sc.predictor_hidden, act)
+        self.proj_self = nn.Linear(self.self_encoder.out_dim if self.self_encoder else d_self, d)
+
+        self.fusion = AdaptiveFusion(d, cfg.fusion, act)
+        self.task_token = nn.Linear(layout.dim("task"), d)
+        self.extra_tokens = nn.ModuleDict({g: nn.Linear(layout.dim(g), d) for g in layout.extra_groups})
+        n_tokens = t_self + 1 + len(layout.extra_groups)
+        self.pos = nn.Parameter(0.02 * torch.randn(1, n_tokens, d))
+        self.transformer = TransformerEncoder(d, cfg.num_heads, cfg.ff_dim, cfg.num_layers)
+        self.out_dim = n_tokens * d
+
+        self.env_anchor = ParamAnchor(self.env_encoder) if self.env_encoder else None
+        self.self_anchor = ParamAnchor(self.self_encoder) if self.self_encoder else None
+
+    # ----- forward -----
+    def encode(self, groups: dict[str, torch.Tensor]) -> DetachFeatures:
+        x_env, x_self = groups["env"], groups["self"]
+        z_env = self.env_encoder(x_env) if self.env_encoder else None
+        f_env = self.proj_env(z_env if z_env is not None else x_env)
+        z_self = self.self_encoder(x_self) if self.self_encoder else None
+        f_self = self.proj_self(z_self if z_self is not None else x_self)
+        fusion = self.fusion(f_env, f_self)
+        return DetachFeatures(
+            z_env if z_env is not None else f_env, z_self if z_self is not None else f_self, f_env, f_self, fusion
+        )
+
+    def tokens(self, groups: dict[str, torch.Tensor], fused: torch.Tensor) -> torch.Tensor:
+        """[N, n_tokens, d]: fused step tokens, task token, extra-group tokens, + positions."""
+        parts = [fused, self.task_token(groups["task"]).unsqueeze(1)]
+        parts += [self.extra_tokens[g](groups[g]).unsqueeze(1) for g in self.layout.extra_groups]
+        return torch.cat(parts, dim=1) + self.pos
+
+    def latent(self, groups: dict[str, torch.Tensor], feats: DetachFeatures) -> torch.Tensor:
+        """φ over the tokens, flattened: [N, out_dim]."""
+        return self.transformer(self.tokens(groups, feats.fusion.fused)).flatten(1)
+
+    def forward(self, groups: dict[str, torch.Tensor]) -> torch.Tensor:
+        return self.latent(groups, self.encode(groups))
+
+    # ----- auxiliary losses -----
+    def temporal_prediction_loss(self, x_self: torch.Tensor) -> torch.Tensor:
+        """L_self = ‖Φ_self(obs^{t+1}) - f_pred(Φ_self(obs^t))‖².
+
+        obs^t is the history window ending one step before the newest (steps 0..T-2), obs^{t+1}
+        the window ending at the newest (1..T-1); each is summarised by the time-mean of z_self.
+        A per-step target inside one window would leak through the backward GRU direction. The
+        target is detached (stop-gradient, as in SimSiam/BYOL) to slow collapse.
+        """
+        if self.self_encoder is None or self.predictor is None or x_self.shape[1] < 2:
+            return x_self.new_zeros(())
+        z = self.self_encoder(torch.cat([x_self[:, :-1], x_self[:, 1:]], dim=0)).mean(1)
+        z_prev, z_next = z.chunk(2, dim=0)
+        return L.mse(self.predictor(z_prev), z_next.detach())
+
+    def aux_losses(
+        self, groups: dict[str, torch.Tensor], reg: RegularizerCfg, feats: DetachFeatures | None = None
+    ) -> dict[str, torch.Tensor]:
+        """Every DETACH term as an unweighted scalar (see `DetachModel.aux_losses`); `feats`
+        reuses the encoder/fusion outputs of a forward pass on the same groups."""
+        x_env, x_self = groups["env"], groups["self"]
+        feats = self.encode(groups) if feats is None else feats
+        fo = feats.fusion
+        zero = x_env.new_zeros(())
+        rec_env = L.mse(self.env_decoder(feats.z_env), x_env) if self.env_decoder else zero
+        rec_self = L.mse(self.self_decoder(feats.z_self), x_self) if self.self_decoder else zero
+        z_env, z_self = feats.z_env.mean(1), feats.z_self.mean(1)
+        mi = L.gaussian_mi(z_env, z_self)
+        r1 = L.param_l2(self.env_encoder.parameters(), self.env_anchor.anchors()) if self._anchored("env") else None
+        r2 = L.param_l2(self.self_encoder.parameters(), self.self_anchor.anchors()) if self._anchored("self") else None
+        return {
+            "L_env": rec_env,
+            "L_self": self.temporal_prediction_loss(x_self),
+            "R_decouple": L.r_decouple(z_env, z_self),
+            "MI": mi,
+            "R_temporal": L.temporal_consistency(feats.z_self) if self.self_encoder else zero,
+            "R_semantic_env": rec_env,
+            "R_semantic_self": rec_self,
+            "R_semantic": reg.semantic_env_weight * rec_env + reg.semantic_self_weight * rec_self,
+            "L_fusion_quality": L.fusion_consistency(fo.cross, fo.env_aligned, feats.f_self)
+            + reg.lambda_disentangle * mi,
+            "R1": r1 if r1 is not None else zero,
+            "R2": r2 if r2 is not None else zero,
+            "R3": L.fusion_diversity([fo.cross, fo.gate, fo.moe], reg.r3_mode),
+        }
+
+    # ----- parameter groups for the progressive protocol -----
+    def _anchored(self, stream: str) -> bool:
+        anchor = self.env_anchor if stream == "env" else self.self_anchor
+        return anchor is not None and bool(anchor.valid)
+
+    def encoder_modules(self) -> list[nn.Module]:
+        """Φ_env and Φ_self (whichever exist): θ_env, θ_self of the paper."""
+        return [m for m in (self.env_encoder, self.self_encoder) if m is not None]
+
+    def pretrain_head_modules(self) -> list[nn.Module]:
+        """Decoder_env, Decoder_self, f_pred: trained only by the auxiliary losses."""
+        return [m for m in (self.env_decoder, self.self_decoder, self.predictor) if m is not None]
+
+    def fusion_parameters(self) -> Iterator[nn.Parameter]:
+        """P_env, P_self, the fusion module, the task/extra tokens, positions and φ."""
+        for m in (self.proj_env, self.proj_self, self.fusion, self.task_token, self.extra_tokens, self.transformer):
+            yield from m.parameters()
+        yield self.pos
+
+    def snapshot_encoders(self) -> None:
+        """Store θ*_env, θ*_self (end of pre-training) for R1/R2."""
+        if self.env_encoder is not None:
+            self.env_anchor.store(self.env_encoder)
+        if self.self_encoder is not None:
+            self.self_anchor.store(self.self_encoder)

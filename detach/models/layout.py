@@ -1,0 +1,123 @@
+"""Where each observation group sits in the flat model input, and how to reshape it.
+
+rsl-rl hands a model the groups of its observation set (e.g. actor: self, env, task); the
+model concatenates them (so rsl-rl's EmpiricalNormalization can normalise them in one go) and
+`ObsLayout.split` cuts the normalised vector back into named pieces, reshaping the history
+groups `self` and `env` from [N, T*d] to [N, T, d] (time-major, step 0 oldest; see
+`detach.envs.obs_spec`). Groups other than self/env/task (e.g. `critic`) stay flat.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+import typing
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+from tensordict import TensorDict
+
+from detach.config_schema import ModelCfg
+from detach.envs.obs_spec import ObsSpec
+
+HISTORY_GROUPS: tuple[str, ...] = ("self", "env")
+
+
+@dataclass(frozen=True)
+class ObsLayout:
+    """Names, widths and history shapes of the groups one model consumes, in input order."""
+
+    groups: tuple[str, ...]
+    dims: tuple[int, ...]
+    spec: ObsSpec
+
+    @classmethod
+    def from_obs(cls, obs: TensorDict, groups: list[str] | tuple[str, ...], spec: ObsSpec) -> ObsLayout:
+        """Check every group's width against the spec and record the order."""
+        expected = spec.group_dims()
+        dims = []
+        for g in groups:
+            if g not in obs.keys():
+                raise KeyError(f"observation group '{g}' is missing; the TensorDict has {list(obs.keys())}")
+            width = obs[g].shape[-1]
+            if g in expected and width != expected[g]:
+                raise ValueError(f"observation group '{g}' has width {width}, obs_spec expects {expected[g]}")
+            dims.append(int(width))
+        return cls(tuple(groups), tuple(dims), spec)
+
+    def require(self, *names: str) -> None:
+        """One-line error when a model needs a group its observation set lacks."""
+        missing = [n for n in names if n not in self.groups]
+        if missing:
+            raise ValueError(f"model needs observation groups {missing}; its obs set has {list(self.groups)}")
+
+    def history_shape(self, group: str) -> tuple[int, int]:
+        """(T, d) of a history group."""
+        if group == "self":
+            return self.spec.self_steps, self.spec.self_dim
+        if group == "env":
+            return self.spec.env_steps, self.spec.env_dim
+        raise KeyError(group)
+
+    @property
+    def extra_groups(self) -> tuple[str, ...]:
+        """Flat groups beyond self/env/task (e.g. the privileged `critic` group)."""
+        return tuple(g for g in self.groups if g not in (*HISTORY_GROUPS, "task"))
+
+    def dim(self, group: str) -> int:
+        return self.dims[self.groups.index(group)]
+
+    def split(self, x: torch.Tensor) -> dict[str, torch.Tensor]:
+        """[N, sum(dims)] -> {group: [N, T, d] for histories, [N, D] otherwise}."""
+        out: dict[str, torch.Tensor] = {}
+        for g, part in zip(self.groups, torch.split(x, list(self.dims), dim=-1)):
+            if g in HISTORY_GROUPS:
+                t, d = self.history_shape(g)
+                part = part.reshape(*part.shape[:-1], t, d)
+            out[g] = part
+        return out
+
+
+def align_time(x: torch.Tensor, steps: int) -> torch.Tensor:
+    """Resample a sequence [N, T, d] to [N, steps, d] (identity when T == steps).
+
+    Used where a per-time-step pairing of self and env features is needed and the two
+    histories have different lengths: linear interpolation, oldest and newest steps aligned.
+    """
+    if x.shape[1] == steps:
+        return x
+    y = F.interpolate(x.transpose(1, 2), size=steps, mode="linear", align_corners=True)
+    return y.transpose(1, 2)
+
+
+def _build(tp: Any, value: Any) -> Any:
+    """Plain YAML/JSON-like data -> the (possibly nested, frozen) dataclass type `tp`."""
+    if dataclasses.is_dataclass(tp):
+        if isinstance(value, tp):
+            return value
+        hints = typing.get_type_hints(tp)
+        names = {f.name for f in dataclasses.fields(tp)}
+        unknown = set(value) - names
+        if unknown:
+            raise ValueError(f"unknown {tp.__name__} keys {sorted(unknown)}; valid: {sorted(names)}")
+        return tp(**{k: _build(hints[k], v) for k, v in value.items()})
+    origin = typing.get_origin(tp)
+    if origin is tuple and isinstance(value, (list, tuple)):
+        args = typing.get_args(tp)
+        inner = args[0] if args else Any
+        return tuple(_build(inner, v) for v in value)
+    if origin in (typing.Union, types.UnionType) and value is not None:
+        inner = [a for a in typing.get_args(tp) if a is not type(None)]
+        return _build(inner[0], value)
+    return value
+
+
+def model_cfg_from_dict(data: dict | ModelCfg) -> ModelCfg:
+    """`dataclasses.asdict(ModelCfg)` (lists allowed for tuples) -> ModelCfg."""
+    return _build(ModelCfg, data)
+
+
+def obs_spec_from_dict(data: dict | ObsSpec) -> ObsSpec:
+    return data if isinstance(data, ObsSpec) else ObsSpec(**data)

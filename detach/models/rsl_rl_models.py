@@ -1,0 +1,270 @@
+"""The four kinds of network as rsl-rl-lib actor/critic models.
+
+rsl-rl 5.x builds actor and critic as `cls(obs, obs_groups, obs_set, output_dim, **cfg)` and
+calls only the `MLPModel` API (forward with `stochastic_output`, `get_output_log_prob`,
+`output_distribution_params`, `output_entropy`, `get_kl_divergence`, `update_normalization`,
+`reset`, `get_hidden_state`). Each class here is an `MLPModel` whose `get_latent` runs a trunk
+(DETACH, TokenHSI, CML or flat) on the normalised, named observation groups; `self.mlp` (the
+adapter MLP `adapter_units`, e.g. [1024, 512]) is the policy head (Gaussian actions through
+rsl-rl's distribution) or the value head.
+
+Actor and critic (design choice): two separate instances of the same architecture, the critic
+with the extra privileged `critic` group as one more token/input. The paper's φ is shared by
+the env and self streams and feeds separate policy and value heads; a trunk shared between
+actor and critic would need deduplicated parameters in PPO's optimizer, one joint gradient
+clip (PPO clips actor and critic separately) and a tuned value-loss scale, all at odds with
+stock rsl-rl. Consequence: each instance has its own encoders; train both with the auxiliary
+losses or copy the pretrained ones with `critic.load_encoders_from(actor)`.
+
+Multi-head critic (CML, any kind): with `value_objectives = [o_1, ..., o_K]` the value MLP
+outputs K values. `forward(obs)` — what PPO's value path gets — returns [N, 1], the weighted
+sum Σ_k w_k V_k (weights `objective_weights`, default 1; set them to the reward weights so that
+the sum is the value of the combined reward). `value_heads(obs)` returns [N, K] in objective
+order, for a trainer that computes GAE and normalises advantages per objective.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from itertools import chain
+from typing import ClassVar
+
+import torch
+import torch.nn as nn
+from rsl_rl.models import MLPModel
+from rsl_rl.modules import HiddenState
+from tensordict import TensorDict
+
+from detach.models.cml import CMLTrunk
+from detach.models.detach_net import DetachFeatures, DetachTrunk
+from detach.models.layout import ObsLayout, model_cfg_from_dict, obs_spec_from_dict
+from detach.models.losses import combine_aux_losses
+from detach.models.mlp import FlatTrunk
+from detach.models.tokenhsi import TokenHSITrunk
+
+
+class StructuredModel(MLPModel):
+    """MLPModel whose latent is `trunk(named normalised groups)`; optional multi-head value output.
+
+    Args (beyond rsl-rl's obs, obs_groups, obs_set, output_dim):
+        obs_spec: `ObsSpec.to_dict()`, to reshape the history groups.
+        model: `dataclasses.asdict(ModelCfg)`; `adapter_units`, `activation` and
+            `obs_normalization` configure the head MLP and the normaliser.
+        distribution_cfg: rsl-rl distribution (actor only).
+        value_objectives: names of the value heads (critic only); None = one plain output.
+    """
+
+    trunk_class: ClassVar[type[nn.Module]] = FlatTrunk
+    sum_value_heads: bool = True
+    """With several value heads, forward returns their weighted sum [N, 1] (stock PPO); a
+    trainer with per-objective GAE (`detach.train.amp_ppo.AmpPPO`) sets False to get [N, K]."""
+
+    def __init__(
+        self,
+        obs: TensorDict,
+        obs_groups: dict[str, list[str]],
+        obs_set: str,
+        output_dim: int,
+        obs_spec: dict,
+        model: dict,
+        distribution_cfg: dict | None = None,
+        value_objectives: Sequence[str] | None = None,
+    ) -> None:
+        cfg = model_cfg_from_dict(model)
+        layout = ObsLayout.from_obs(obs, obs_groups[obs_set], obs_spec_from_dict(obs_spec))
+        trunk = self.trunk_class(layout, cfg)
+        objectives = tuple(value_objectives or ())
+        if objectives and distribution_cfg is not None:
+            raise ValueError("value_objectives is for critics; an actor with distribution_cfg has one action head")
+        if objectives and output_dim not in (1, len(objectives)):
+            raise ValueError(f"critic output_dim {output_dim} does not match value_objectives {list(objectives)}")
+        self._latent_dim = trunk.out_dim  # read by MLPModel.__init__ through _get_latent_dim
+        super().__init__(
+            obs,
+            obs_groups,
+            obs_set,
+            len(objectives) if objectives else output_dim,
+            hidden_dims=tuple(cfg.adapter_units),
+            activation=cfg.activation,
+            obs_normalization=cfg.obs_normalization,
+            distribution_cfg=distribution_cfg,
+        )
+        self.cfg = cfg
+        self.layout = layout
+        self.trunk = trunk
+        self.value_objectives = objectives
+        if objectives:
+            self.register_buffer("objective_weights", torch.ones(len(objectives)))
+
+    # ----- rsl-rl API -----
+    def _get_latent_dim(self) -> int:
+        return self._latent_dim
+
+    def normalized_groups(self, obs: TensorDict) -> dict[str, torch.Tensor]:
+        """Concatenate this obs set's groups, normalise, split back by name (histories [N, T, d])."""
+        return self.layout.split(super().get_latent(obs))
+
+    def get_latent(
+        self, obs: TensorDict, masks: torch.Tensor | None = None, hidden_state: HiddenState = None
+    ) -> torch.Tensor:
+        return self.trunk(self.normalized_groups(obs))
+
+    def forward(
+        self,
+        obs: TensorDict,
+        masks: torch.Tensor | None = None,
+        hidden_state: HiddenState = None,
+        stochastic_output: bool = False,
+    ) -> torch.Tensor:
+        out = super().forward(obs, masks, hidden_state, stochastic_output)
+        if self.value_objectives and self.sum_value_heads:
+            return (out * self.objective_weights).sum(-1, keepdim=True)
+        return out
+
+    def as_jit(self) -> nn.Module:
+        raise NotImplementedError(f"{type(self).__name__}: TorchScript export is not supported; use the eager model")
+
+    def as_onnx(self, verbose: bool = False) -> nn.Module:
+        raise NotImplementedError(f"{type(self).__name__}: ONNX export is not supported; use the eager model")
+
+    # ----- multi-head critic -----
+    def value_heads(self, obs: TensorDict) -> torch.Tensor:
+        """Per-objective values [N, K] (order of `value_objectives`)."""
+        if not self.value_objectives:
+            raise ValueError(f"{type(self).__name__} was built without value_objectives")
+        return self.mlp(self.get_latent(obs))
+
+    def set_objective_weights(self, weights: Sequence[float] | torch.Tensor) -> None:
+        """w_k of forward's Σ_k w_k V_k (e.g. task and style reward weights)."""
+        w = torch.as_tensor(weights, dtype=self.objective_weights.dtype, device=self.objective_weights.device)
+        if w.shape != self.objective_weights.shape:
+            raise ValueError(f"expected {len(self.value_objectives)} weights for {list(self.value_objectives)}")
+        self.objective_weights.copy_(w)
+
+    # ----- uniform hooks for trainers (no-ops except in DetachModel) -----
+    def aux_losses(self, obs: TensorDict) -> dict[str, torch.Tensor]:
+        """Auxiliary loss terms; none for the baselines."""
+        return {}
+
+    def head_parameters(self) -> Iterator[nn.Parameter]:
+        """The adapter MLP and the distribution's parameters (e.g. the action std)."""
+        yield from self.mlp.parameters()
+        if self.distribution is not None:
+            yield from self.distribution.parameters()
+
+
+class DetachModel(StructuredModel):
+    """DETACH (and its ablations A1/A2 through `use_env_encoder` / `use_self_encoder`).
+
+    Trainer API for the 3-stage protocol:
+        aux_losses(obs, reuse_forward=False) -> {name: scalar}: unweighted terms on the same
+            normalised inputs as forward; runs encoders + fusion again (never φ). With
+            reuse_forward=True and the very TensorDict object of the last training-mode forward
+            pass with grad (a PPO update: actor(batch.observations, ...), then
+            actor.aux_losses(batch.observations, reuse_forward=True), then ONE backward of
+            PPO loss + aux loss) it reuses that pass's encoder and fusion outputs instead,
+            saving ~1/3 of the aux cost; do not use it if that forward's graph was already
+            backpropagated. Terms:
+            L_env (Decoder_env reconstruction), L_self (temporal prediction), R_decouple
+            (‖Corr(z_env, z_self)‖_F²), MI (correlation-based I(z_env, z_self)), R_temporal,
+            R_semantic_env, R_semantic_self, R_semantic (α/β-weighted sum), L_fusion_quality
+            (‖f_cross - (f_env + f_self)‖² + λ_disentangle·MI), R1, R2 (‖θ - θ*‖², 0 before
+            `snapshot_encoders`), R3 (fusion diversity, `regularizers.r3_mode`). Terms whose
+            module an ablation removed are 0; the keys are always the same.
+        aux_loss(obs, stage, reuse_forward=False) -> scalar: the weighted sum for stage
+            pretrain | fusion | joint
+            (see `losses.combine_aux_losses`).
+        encoder_parameters(), pretrain_parameters(), fusion_parameters(), head_parameters()
+        freeze_encoders(), unfreeze_encoders(), snapshot_encoders(), load_encoders_from(other)
+    Pre-training without PPO: call `update_normalization(obs)` yourself so the inputs are
+    normalised as they will be during RL.
+    """
+
+    trunk_class = DetachTrunk
+    trunk: DetachTrunk
+    _forward_cache: tuple[TensorDict, dict[str, torch.Tensor], DetachFeatures] | None = None
+
+    def get_latent(
+        self, obs: TensorDict, masks: torch.Tensor | None = None, hidden_state: HiddenState = None
+    ) -> torch.Tensor:
+        groups = self.normalized_groups(obs)
+        feats = self.trunk.encode(groups)
+        # Keep the encoder/fusion outputs of a training forward pass for aux_losses on the same obs.
+        self._forward_cache = (obs, groups, feats) if torch.is_grad_enabled() and self.training else None
+        return self.trunk.latent(groups, feats)
+
+    def aux_losses(self, obs: TensorDict, reuse_forward: bool = False) -> dict[str, torch.Tensor]:
+        cache, self._forward_cache = self._forward_cache, None
+        if reuse_forward and cache is not None and cache[0] is obs:
+            return self.trunk.aux_losses(cache[1], self.cfg.regularizers, cache[2])
+        return self.trunk.aux_losses(self.normalized_groups(obs), self.cfg.regularizers)
+
+    def aux_loss(self, obs: TensorDict, stage: str, reuse_forward: bool = False) -> torch.Tensor:
+        return combine_aux_losses(self.aux_losses(obs, reuse_forward), stage, self.cfg.regularizers)
+
+    def encoder_parameters(self) -> Iterator[nn.Parameter]:
+        """θ_env and θ_self (Φ_env, Φ_self)."""
+        return chain.from_iterable(m.parameters() for m in self.trunk.encoder_modules())
+
+    def pretrain_parameters(self) -> Iterator[nn.Parameter]:
+        """Stage 1: the encoders plus Decoder_env, Decoder_self and f_pred."""
+        mods = self.trunk.encoder_modules() + self.trunk.pretrain_head_modules()
+        return chain.from_iterable(m.parameters() for m in mods)
+
+    def fusion_parameters(self) -> Iterator[nn.Parameter]:
+        """Stage 2 (besides the heads): P_env, P_self, fusion, tokens and φ."""
+        return self.trunk.fusion_parameters()
+
+    def freeze_encoders(self) -> None:
+        """Stage 2: θ_env, θ_self get requires_grad=False (Adam skips params without grad)."""
+        for p in self.encoder_parameters():
+            p.requires_grad_(False)
+
+    def unfreeze_encoders(self) -> None:
+        for p in self.encoder_parameters():
+            p.requires_grad_(True)
+
+    def snapshot_encoders(self) -> None:
+        """Record θ*_env, θ*_self (call at the end of pre-training); R1/R2 measure drift from them."""
+        self.trunk.snapshot_encoders()
+
+    @torch.no_grad()
+    def load_encoders_from(self, other: DetachModel) -> None:
+        """Copy encoders, their pre-training heads and anchors from another DETACH model (actor -> critic)."""
+        t, o = self.trunk, other.trunk
+        names = ("env_encoder", "env_decoder", "self_encoder", "self_decoder", "predictor", "env_anchor", "self_anchor")
+        for name in names:
+            mine, theirs = getattr(t, name), getattr(o, name)
+            if (mine is None) != (theirs is None):
+                raise ValueError(f"cannot copy {name}: present in only one of the two models")
+            if mine is not None:
+                mine.load_state_dict(theirs.state_dict())
+
+    def fusion_weights(self) -> dict[str, float]:
+        """α, β, γ of f_fused, for logging."""
+        f = self.trunk.fusion
+        return {"alpha": f.alpha.item(), "beta": f.beta.item(), "gamma": f.gamma.item()}
+
+
+class TokenHSIModel(StructuredModel):
+    """TokenHSI baseline: per-group tokenizers, action token, transformer, MLP head."""
+
+    trunk_class = TokenHSITrunk
+
+
+class CMLModel(StructuredModel):
+    """CML baseline: GRU over the observation window; use with value_objectives for its multi-critic."""
+
+    trunk_class = CMLTrunk
+
+
+class MLPBaselineModel(StructuredModel):
+    """Plain MLP on the concatenated normalised groups (same as rsl-rl's MLPModel); exportable."""
+
+    trunk_class = FlatTrunk
+
+    def as_jit(self) -> nn.Module:
+        return MLPModel.as_jit(self)
+
+    def as_onnx(self, verbose: bool = False) -> nn.Module:
+        return MLPModel.as_onnx(self, verbose)
