@@ -22,7 +22,7 @@ Run the DETACH study: train a model on a task, evaluate it, resume it, sweep a g
   detach-run configs/tasks/lh1.yaml --model detach            train, then evaluate
   detach-run configs/tasks/lh3.yaml --model ablation_a1 --dry-run
   detach-run configs/tasks/follow.yaml --model mlp env.character=puppet train.max_iterations=50
-  detach-run --resume runs/20261123-120000-lh1-detach-s0
+  detach-run --resume runs/20261123-120000-lh1-detach-s0 [train.max_iterations=2000]
   detach-run --eval runs/20261123-120000-lh1-detach-s0 --task configs/tasks/lh2.yaml
   detach-run --sweep configs/sweeps/table3_ablation.yaml --quick --jobs 2
   detach-run list                                             table of runs
@@ -103,6 +103,9 @@ def build_table_parser() -> argparse.ArgumentParser:
                         help="table layout (default: the sweep's, or all three for a folder)")
     parser.add_argument("--out", type=Path, default=None,
                         help="folder for the .md/.csv/.tex files (default: <runs>/tables/)")
+    parser.add_argument("--task", default=None,
+                        help="evaluation task to tabulate instead of the paper's (LH1 for "
+                             "skills, LH2 and LH3 for generalization, LH3 for ablation)")
     return parser
 
 
@@ -135,8 +138,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             from detach.runs.tables_cli import print_table
 
             args = build_table_parser().parse_args(argv[1:])
-            return print_table(args.source, args.runs, args.kind, args.out)
+            return print_table(args.source, args.runs, args.kind, args.out, args.task)
         args = build_parser().parse_intermixed_args(argv)
+        if (args.resume or args.eval or args.sweep) and args.task:
+            # No TASK_YAML in these modes: a positional key=value is an override.
+            args.overrides, args.task = [args.task, *args.overrides], None
         check_device(args.device)
         if args.sweep:
             from detach.runs.sweep import run_sweep
@@ -184,6 +190,8 @@ def _resume(args: argparse.Namespace) -> int:
         raise ConfigError("not a run folder (no config.yaml)", str(args.resume))
     if run.latest_checkpoint() is None:
         raise ConfigError("run has no checkpoint to resume from", str(args.resume))
+    if args.overrides:
+        _extend_config(run, args.overrides)
     run.config()  # validates the stored config as a user error, not a traceback
     from detach.runs.job import run_job
     from detach.train.session import train_and_evaluate
@@ -192,6 +200,22 @@ def _resume(args: argparse.Namespace) -> int:
     return run_job(run, lambda r: train_and_evaluate(
         r, resume=True, eval_tasks=args.eval_on, trials=args.trials, evaluate=not args.no_eval,
         device=args.device))
+
+
+RESUME_OVERRIDABLE = ("train.max_iterations", "train.save_interval", "eval.")
+
+
+def _extend_config(run: RunFolder, overrides: Sequence[str]) -> None:
+    """Apply overrides that cannot invalidate the checkpoints (e.g. train longer)."""
+    from detach.config import load_run_config
+    from detach.runs.folder import atomic_write_text
+
+    for text in overrides:
+        key = text.split("=", 1)[0]
+        if not key.startswith(RESUME_OVERRIDABLE):
+            raise ConfigError(f"cannot change '{key}' when resuming; only "
+                              f"{', '.join(RESUME_OVERRIDABLE)}* may change")
+    atomic_write_text(run.config_path, dump(load_run_config(run.config_path, overrides)))
 
 
 def _evaluate(args: argparse.Namespace) -> int:

@@ -74,6 +74,9 @@ class SimCfg:
     """Threads stepping the batch; 0 = all cores."""
     friction: float = 1.0
     solver_iterations: int = 4
+    sleep: bool = True
+    """Let resting objects sleep (MuJoCo islands): untouched boxes and furniture cost nothing
+    until something touches them (~35% less physics per step in the LH scenes)."""
 
 
 @dataclass(frozen=True)

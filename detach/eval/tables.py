@@ -118,13 +118,13 @@ def _lh1_rate(groups, trained_on: str, model: str) -> float | None:
     return _pool(runs, lambda e: e["lh_success"]["rate"]).value if runs else None
 
 
-def skills_table(evals: Sequence[dict[str, Any]]) -> Table:
-    """Paper Table I: success rates of the four skills and of LH1."""
+def skills_table(evals: Sequence[dict[str, Any]], task: str = "lh1") -> Table:
+    """Paper Table I: success rates of the four skills and of the whole task (LH1)."""
     groups = _group(evals)
-    table = Table("Success rates for foundational skills and composite task completion (LH1)",
-                  ["Method", "Follow", "Carry", "Climb", "Sit", "LH1"])
-    for model in _models(groups, "lh1"):
-        runs = [e for (tr, t, m), es in groups.items() if t == "lh1" and m == model for e in es]
+    table = Table(f"Success rates for foundational skills and composite task completion "
+                  f"({task.upper()})", ["Method", "Follow", "Carry", "Climb", "Sit", task.upper()])
+    for model in _models(groups, task):
+        runs = [e for (tr, t, m), es in groups.items() if t == task and m == model for e in es]
         row: list[str | Cell] = [METHOD_NAMES.get(model, model)]
         row += [_pool(runs, lambda e, s=s: _subtask_rate(e, s, 0))
                 for s in ("traj", "carry", "climb", "sit")]
@@ -184,3 +184,12 @@ def ablation_table(evals: Sequence[dict[str, Any]], task: str = "lh3") -> Table:
 
 TABLES = {"skills": skills_table, "generalization": generalization_table,
           "ablation": ablation_table}
+
+
+def render(kind: str, evals: Sequence[dict[str, Any]], task: str | None = None) -> Table:
+    """One table by name; `task` replaces the paper's evaluation task (LH1 / LH2+LH3 / LH3)."""
+    if task is None:
+        return TABLES[kind](evals)
+    if kind == "generalization":
+        return generalization_table(evals, experiments=(task,))
+    return TABLES[kind](evals, task=task)

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from detach.config import ConfigError
-from detach.eval.tables import TABLES
+from detach.eval.tables import TABLES, render
 from detach.runs.folder import RunFolder, atomic_write_text, find_runs
 
 
@@ -29,7 +29,8 @@ def collect_evals(runs: list[RunFolder], cells: set[str] | None = None) -> list[
     return evals
 
 
-def print_table(source: Path, runs_dir: Path, kind: str | None, out: Path | None) -> int:
+def print_table(source: Path, runs_dir: Path, kind: str | None, out: Path | None,
+                task: str | None = None) -> int:
     if not source.exists():
         raise ConfigError("sweep file or runs folder not found", str(source))
     if source.is_dir():
@@ -48,7 +49,7 @@ def print_table(source: Path, runs_dir: Path, kind: str | None, out: Path | None
     if not evals:
         raise ConfigError("no eval.json found (train and evaluate runs first)", str(source))
     for k in kinds:
-        table = TABLES[k](evals)
+        table = render(k, evals, task)
         markdown = table.to_markdown()
         print(markdown)
         stem = out / f"{name}_{k}"

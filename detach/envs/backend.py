@@ -1,0 +1,193 @@
+"""The seam between task logic and the physics engine (ARCHITECTURE.md, "Physics backend").
+
+Task code sees N independent simulations of one MjModel through `PhysicsBackend`: it writes
+controls, steps, resets chosen simulations to given states, and reads batched state as torch
+tensors on its device. It never touches MjData. `MujocoBatchBackend` is the CPU
+implementation on `mujoco.batch.Batch` (all cores, GIL released); a MuJoCo Warp backend
+sharing arrays with torch through DLPack can implement the same interface.
+
+All tensors are float32 on `device`, world frame, MuJoCo conventions: quaternions wxyz,
+`cvel` = [angular(3), linear(3)] spatial velocity about `subtree_com` of the body's tree root,
+`cfrc_ext` = [torque(3), force(3)] of external (contact) forces on each body.
+"""
+
+from __future__ import annotations
+
+import warnings
+from abc import ABC, abstractmethod
+
+import mujoco
+import numpy as np
+import torch
+from mujoco import batch as mjbatch
+
+_STAGE_VEL = int(mujoco.mjtStage.mjSTAGE_VEL)
+_STAGE_NONE = int(mujoco.mjtStage.mjSTAGE_NONE)
+
+
+class PhysicsBackend(ABC):
+    """Batched simulator of one model; every view is [N, ...] and current after step/reset."""
+
+    model: mujoco.MjModel
+    num_envs: int
+    device: torch.device
+
+    @abstractmethod
+    def step(self, ctrl: torch.Tensor, nstep: int) -> None:
+        """Apply ctrl [N, nu] and advance every simulation by nstep physics steps."""
+
+    @abstractmethod
+    def reset(self, ids: torch.Tensor, qpos: torch.Tensor, qvel: torch.Tensor) -> None:
+        """Reset simulations ids [n] to model defaults, then to the given qpos [n, nq], qvel [n, nv].
+
+        Controls, equality activations and warm starts return to the model's defaults.
+        """
+
+    @abstractmethod
+    def set_equality(self, ids: torch.Tensor, eq_id: int, active: torch.Tensor,
+                     data: torch.Tensor | None = None) -> None:
+        """Switch equality constraint eq_id on/off in simulations ids; optionally set its
+        per-simulation eq_data [n, 12] (e.g. a weld's relative pose)."""
+
+    # batched views ------------------------------------------------------------------------
+    @property
+    @abstractmethod
+    def qpos(self) -> torch.Tensor: ...
+
+    @property
+    @abstractmethod
+    def qvel(self) -> torch.Tensor: ...
+
+    @property
+    @abstractmethod
+    def xpos(self) -> torch.Tensor: ...
+
+    @property
+    @abstractmethod
+    def xquat(self) -> torch.Tensor: ...
+
+    @property
+    @abstractmethod
+    def cvel(self) -> torch.Tensor: ...
+
+    @property
+    @abstractmethod
+    def subtree_com(self) -> torch.Tensor: ...
+
+    @property
+    @abstractmethod
+    def qfrc_actuator(self) -> torch.Tensor: ...
+
+    @property
+    @abstractmethod
+    def cfrc_ext(self) -> torch.Tensor: ...
+
+    @property
+    @abstractmethod
+    def ncon(self) -> torch.Tensor: ...
+
+    @property
+    @abstractmethod
+    def eq_active(self) -> torch.Tensor: ...
+
+    def body_velocities(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """(linear velocity of each body origin, angular velocity), world frame, [N, nbody, 3]."""
+        cvel = self.cvel
+        root = torch.as_tensor(self.model.body_rootid, device=self.device, dtype=torch.long)
+        com = self.subtree_com[:, root]
+        ang, lin = cvel[..., :3], cvel[..., 3:]
+        return lin + torch.cross(ang, self.xpos - com, dim=-1), ang
+
+
+class MujocoBatchBackend(PhysicsBackend):
+    """`mujoco.batch.Batch` on nthread CPU threads (0 = all cores).
+
+    The batch is persistent (one MjData per simulation) and every step ends with the
+    position and velocity stages at the new state (`mjSTAGE_VEL`), which a persistent batch
+    reuses for its next step: body poses and velocities are those of the current state at no
+    extra cost. Views are converted to float32 torch tensors lazily, once per step.
+    """
+
+    _OUTPUTS = ("xpos", "xquat", "cvel", "subtree_com", "qfrc_actuator", "cfrc_ext", "ncon")
+
+    def __init__(self, model: mujoco.MjModel, num_envs: int, nthread: int = 0,
+                 device: str | torch.device = "cpu") -> None:
+        self.model = model
+        self.num_envs = int(num_envs)
+        self.device = torch.device(device)
+        self.batch = mjbatch.Batch(model, self.num_envs, nthread=nthread, persistent=True)
+        self._np = {name: self.batch.bind(name) for name in ("qpos", "qvel", "ctrl", "eq_active")}
+        for name in self._OUTPUTS:
+            self._np[name] = self.batch.bind(name)
+        self._eq_data = self.batch.expand("eq_data") if model.neq else None
+        self._cache: dict[str, torch.Tensor] = {}
+        self.batch.reset(stage=int(mujoco.mjtStage.mjSTAGE_ACC))
+
+    @property
+    def nthread(self) -> int:
+        return self.batch.nthread
+
+    def _view(self, name: str) -> torch.Tensor:
+        t = self._cache.get(name)
+        if t is None:
+            arr = self._np[name]
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # read-only outputs: we never write them
+                src = torch.from_numpy(np.asarray(arr))
+            dtype = torch.int32 if name == "ncon" else torch.float32
+            t = src.to(device=self.device, dtype=dtype, copy=True)
+            self._cache[name] = t
+        return t
+
+    def step(self, ctrl: torch.Tensor, nstep: int) -> None:
+        self._np["ctrl"][:] = ctrl.detach().to("cpu", torch.float64).numpy()
+        self.batch.step(nstep=int(nstep), stage=_STAGE_VEL)
+        self._cache.clear()
+
+    def reset(self, ids: torch.Tensor, qpos: torch.Tensor, qvel: torch.Tensor) -> None:
+        if len(ids) == 0:
+            return
+        idx = np.sort(ids.detach().cpu().numpy().astype(np.int64))
+        order = np.argsort(ids.detach().cpu().numpy(), kind="stable")
+        self.batch.reset(idx, stage=_STAGE_NONE)
+        self._np["qpos"][idx] = qpos.detach().cpu().double().numpy()[order]
+        self._np["qvel"][idx] = qvel.detach().cpu().double().numpy()[order]
+        self.batch.forward(idx, stage=_STAGE_VEL)
+        self._cache.clear()
+
+    def forward(self, ids: torch.Tensor | None = None) -> None:
+        """Recompute derived fields after writing state directly (tests, tools)."""
+        idx = None if ids is None else np.sort(ids.detach().cpu().numpy().astype(np.int64))
+        self.batch.forward(idx, stage=_STAGE_VEL)
+        self._cache.clear()
+
+    def set_equality(self, ids: torch.Tensor, eq_id: int, active: torch.Tensor,
+                     data: torch.Tensor | None = None) -> None:
+        if len(ids) == 0:
+            return
+        idx = ids.detach().cpu().numpy().astype(np.int64)
+        if data is not None:
+            self._eq_data[idx, eq_id] = data.detach().cpu().double().numpy()
+        self._np["eq_active"][idx, eq_id] = active.detach().cpu().double().numpy()
+        self._cache.pop("eq_active", None)
+
+    def write_qpos(self, ids: torch.Tensor, qpos: torch.Tensor) -> None:
+        """Overwrite qpos of simulations ids without resetting anything else (tests, tools)."""
+        idx = ids.detach().cpu().numpy().astype(np.int64)
+        self._np["qpos"][idx] = qpos.detach().cpu().double().numpy()
+        self.forward(ids)
+
+    def get_data(self, env: int) -> mujoco.MjData:
+        """One simulation's full MjData (rendering, recording, debugging)."""
+        return self.batch.get_data(int(env))
+
+    qpos = property(lambda self: self._view("qpos"))
+    qvel = property(lambda self: self._view("qvel"))
+    xpos = property(lambda self: self._view("xpos"))
+    xquat = property(lambda self: self._view("xquat"))
+    cvel = property(lambda self: self._view("cvel"))
+    subtree_com = property(lambda self: self._view("subtree_com"))
+    qfrc_actuator = property(lambda self: self._view("qfrc_actuator"))
+    cfrc_ext = property(lambda self: self._view("cfrc_ext"))
+    ncon = property(lambda self: self._view("ncon"))
+    eq_active = property(lambda self: self._view("eq_active"))

@@ -1,0 +1,198 @@
+"""Observation terms (ARCHITECTURE.md, "Observations"): pure functions on batched tensors.
+
+Frames: everything is expressed in the character's heading frame (world rotated about +Z by
+the root's yaw; +X = where the character faces) and, for positions, relative to the root
+(pelvis) unless stated otherwise. Quaternions are wxyz. Units: metres, radians, m/s, rad/s.
+
+Groups and their frame layouts (sizes for the 15-body, 32-DoF character):
+
+- `self` (287 per frame): root height (1), positions of the 14 non-root bodies (42), rotations
+  of the 15 bodies as tangent/normal 6-D (90), linear (45) and angular (45) velocities of the
+  15 bodies, hinge positions (32) and velocities (32). Proprioception only.
+- `env` (681 per frame): current target relative to the root (3); 10 trajectory samples
+  0.5 s apart, XY relative to the root (20; the target's XY repeated outside `traj`
+  subtasks); the subtask's object: position relative to the root (3), rotation 6-D (6), its 8
+  bounding-box corners relative to the root (24), zeros when the subtask has no object;
+  the 25 x 25 local height map (625): world-Z surface heights on a grid of 0.1 m spacing
+  centred on the root and aligned with the heading (row-major, x forward then y left).
+  Environment only: nothing here depends on the character's joints or velocities.
+- `task` (4): one-hot of the current skill in `SKILLS` order.
+- `amp` (89 per frame, 10 frames): root height (1), root rotation 6-D in the heading frame
+  (6), root linear and angular velocity in the heading frame (3 + 3), hinge positions (32)
+  and velocities (32), hand and foot positions relative to the root, heading frame (12).
+  `amp_frame` is the single definition: motion clips must be featurised with it too.
+- `critic` (977): the newest `self` and `env` frames, `task`, and privileged extras: the
+  subtask object's linear velocity (heading frame, 3), the transition hold progress (1),
+  and the plan progress (1).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+
+from detach.envs.torch_math import box_corners_fast, heading_matrix, quat_axes_xz, quat_to_matrix, yaw_of
+
+NUM_BODIES = 15
+NUM_DOF = 32
+NUM_KEY_BODIES = 4
+SELF_DIM = 1 + 3 * (NUM_BODIES - 1) + 6 * NUM_BODIES + 3 * NUM_BODIES + 3 * NUM_BODIES + 2 * NUM_DOF
+AMP_DIM = 1 + 6 + 3 + 3 + 2 * NUM_DOF + 3 * NUM_KEY_BODIES
+TRAJ_SAMPLES = 10
+CRITIC_EXTRA = 5
+
+
+def env_dim(grid: int) -> int:
+    return 3 + 2 * TRAJ_SAMPLES + 3 + 6 + 24 + grid * grid
+
+
+def _heading(root_quat: torch.Tensor, R: torch.Tensor | None) -> torch.Tensor:
+    return heading_matrix(yaw_of(root_quat)) if R is None else R
+
+
+def self_frame(body_pos: torch.Tensor, body_quat: torch.Tensor, body_lin: torch.Tensor,
+               body_ang: torch.Tensor, dof_pos: torch.Tensor, dof_vel: torch.Tensor,
+               R: torch.Tensor | None = None) -> torch.Tensor:
+    """One proprioception frame [N, 287]; body_* are [N, 15, .] world-frame with the root
+    first; R [N, 3, 3] the heading matrix of the root (computed when None)."""
+    n = body_pos.shape[0]
+    R = _heading(body_quat[:, 0], R)
+    rel = (body_pos[:, 1:] - body_pos[:, :1]) @ R
+    axes = quat_axes_xz(body_quat).reshape(n, -1, 3) @ R
+    vel = torch.cat((body_lin, body_ang), dim=1) @ R
+    return torch.cat((body_pos[:, 0, 2:3], rel.reshape(n, -1), axes.reshape(n, -1), vel.reshape(n, -1),
+                      dof_pos, dof_vel), dim=-1)
+
+
+def amp_frame(root_pos: torch.Tensor, root_quat: torch.Tensor, root_lin: torch.Tensor,
+              root_ang: torch.Tensor, dof_pos: torch.Tensor, dof_vel: torch.Tensor,
+              key_pos: torch.Tensor, R: torch.Tensor | None = None) -> torch.Tensor:
+    """One AMP discriminator frame [N, 89] from world-frame inputs (key_pos [N, 4, 3])."""
+    n = root_pos.shape[0]
+    R = _heading(root_quat, R)
+    vecs = torch.cat((quat_axes_xz(root_quat).reshape(n, 2, 3), root_lin[:, None], root_ang[:, None],
+                      key_pos - root_pos[:, None]), dim=1) @ R
+    return torch.cat((root_pos[:, 2:3], vecs[:, :4].reshape(n, -1), dof_pos, dof_vel,
+                      vecs[:, 4:].reshape(n, -1)), dim=-1)
+
+
+def amp_index(key_bodies: list[int]) -> torch.Tensor:
+    """Where each entry of an AMP frame sits in a self frame (both from the same state), so the
+    env builds `amp` with one gather: `self_frame(...)[:, amp_index(k)] == amp_frame(...)`.
+    key_bodies: indices (>= 1) of the key bodies among the 15."""
+    o_rot = 1 + 3 * (NUM_BODIES - 1)
+    o_lin = o_rot + 6 * NUM_BODIES
+    o_ang = o_lin + 3 * NUM_BODIES
+    o_dof = o_ang + 3 * NUM_BODIES
+    idx = [0, *range(o_rot, o_rot + 6), *range(o_lin, o_lin + 3), *range(o_ang, o_ang + 3),
+           *range(o_dof, o_dof + 2 * NUM_DOF)]
+    idx += [1 + 3 * (k - 1) + j for k in key_bodies for j in range(3)]
+    return torch.tensor(idx, dtype=torch.long)
+
+
+def height_grid_offsets(grid: int, spacing: float, device: torch.device | str) -> torch.Tensor:
+    """[grid*grid, 3] heading-frame offsets (m, z = 0) of the local height-map points,
+    centred on the root, row-major with x (forward) the slow index."""
+    r = (torch.arange(grid, device=device, dtype=torch.float32) - (grid - 1) / 2.0) * spacing
+    gx, gy = torch.meshgrid(r, r, indexing="ij")
+    return torch.stack((gx.reshape(-1), gy.reshape(-1), torch.zeros(grid * grid, device=device)), dim=-1)
+
+
+class Raster:
+    """A static height raster on the env's device, sampled bilinearly with `grid_sample`
+    (0 = floor outside it). heights[i, j] is at (origin_x + i * spacing, origin_y + j * spacing)."""
+
+    def __init__(self, heights: torch.Tensor, origin: tuple[float, float], spacing: float) -> None:
+        self.img = heights[None, None].float()
+        nx, ny = heights.shape
+        dev = heights.device
+        # world (x, y) -> grid_sample's (u, v) in [-1, 1]: u indexes columns (y), v rows (x)
+        self.su, self.sv = 2.0 / (spacing * max(ny - 1, 1)), 2.0 / (spacing * max(nx - 1, 1))
+        self.ou, self.ov = origin[1], origin[0]
+        self.scale = torch.tensor([self.su, self.sv], device=dev)
+        self.shift = torch.tensor([origin[1] * self.su + 1.0, origin[0] * self.sv + 1.0], device=dev)
+
+    def sample_uv(self, uv: torch.Tensor) -> torch.Tensor:
+        out = F.grid_sample(self.img, uv.reshape(1, -1, 1, 2), mode="bilinear", padding_mode="zeros",
+                            align_corners=True)
+        return out.reshape(uv.shape[:-1])
+
+    def sample(self, xy: torch.Tensor) -> torch.Tensor:
+        """Heights [...] at world points xy [..., 2]."""
+        return self.sample_uv(xy.flip(-1) * self.scale - self.shift)
+
+
+def local_height_map(root_pos: torch.Tensor, R: torch.Tensor, offsets: torch.Tensor, raster: Raster,
+                     dyn_pos: torch.Tensor, dyn_quat: torch.Tensor, dyn_half: torch.Tensor) -> torch.Tensor:
+    """[N, P] world-Z surface heights at the grid points around the root (heading-aligned):
+    the static raster, raised to the top of any moving box whose footprint covers a point.
+
+    offsets [P, 3] heading-frame grid offsets; dyn_pos [N, K, 3], dyn_quat [N, K, 4] (wxyz),
+    dyn_half [K, 3]. Only (env, box) pairs within reach of the grid are evaluated, so
+    far-away boxes cost nothing.
+    """
+    c, s = R[:, 0, 0], R[:, 1, 0]
+    # world XY of every point, expressed directly in the raster's sampling coordinates
+    rot = torch.stack((s * raster.su, c * raster.su, c * raster.sv, -s * raster.sv), dim=-1).reshape(-1, 2, 2)
+    base = root_pos[:, :2].flip(-1) * raster.scale - raster.shift  # [N, 2] (u, v) of the root
+    uv = base[:, None, :] + offsets[:, :2] @ rot.transpose(1, 2)  # [N, P, 2]
+    h = raster.sample_uv(uv)
+    K = dyn_pos.shape[1]
+    if K == 0:
+        return h
+    reach = math.sqrt(2.0) * float(offsets[:, :2].abs().max()) + dyn_half[:, :2].norm(dim=-1)  # [K]
+    near = (dyn_pos[..., :2] - root_pos[:, None, :2]).norm(dim=-1) < reach
+    e, k = near.nonzero(as_tuple=True)
+    if len(e) == 0:
+        return h
+    pts = root_pos[e, None, :2] + (offsets @ R[e].transpose(1, 2))[..., :2]  # [M, P, 2] world XY
+    Rb = quat_to_matrix(dyn_quat[e, k])  # [M, 3, 3]
+    local = (torch.cat((pts - dyn_pos[e, k, None, :2], torch.zeros_like(pts[..., :1])), dim=-1) @ Rb)[..., :2]
+    half = dyn_half[k]
+    inside = (local[..., 0].abs() <= half[:, None, 0]) & (local[..., 1].abs() <= half[:, None, 1])
+    top = box_corners_fast(dyn_pos[e, k], dyn_quat[e, k], half)[..., 2].max(dim=-1).values  # [M]
+    val = torch.where(inside, top[:, None], torch.zeros_like(local[..., 0]))
+    return h.scatter_reduce(0, e[:, None].expand_as(val), val, reduce="amax")
+
+
+def env_frame(root_pos: torch.Tensor, R: torch.Tensor, target: torch.Tensor,
+              traj_samples: torch.Tensor, is_traj: torch.Tensor, has_obj: torch.Tensor,
+              obj_pos: torch.Tensor, obj_quat: torch.Tensor, obj_half: torch.Tensor,
+              height_map: torch.Tensor) -> torch.Tensor:
+    """One environment frame [N, 681 for a 25x25 map] (see module doc).
+
+    target [N, 3] world; traj_samples [N, 10, 2] world XY; is_traj, has_obj [N] bool;
+    obj_pos [N, 3], obj_quat [N, 4], obj_half [N, 3] of the subtask's object; R [N, 3, 3]
+    the root's heading matrix.
+    """
+    n, T = root_pos.shape[0], traj_samples.shape[1]
+    smp = torch.where(is_traj[:, None, None], traj_samples, target[:, None, :2])
+    smp = torch.cat((smp, root_pos[:, None, 2:].expand(n, T, 1)), dim=-1)
+    corners = box_corners_fast(obj_pos, obj_quat, obj_half)
+    pts = (torch.cat((target[:, None], smp, obj_pos[:, None], corners), dim=1) - root_pos[:, None]) @ R
+    axes = (quat_axes_xz(obj_quat).reshape(n, 2, 3) @ R).reshape(n, 6)
+    obj = torch.cat((pts[:, T + 1], axes, pts[:, T + 2:].reshape(n, -1)), dim=-1) * has_obj[:, None]
+    return torch.cat((pts[:, 0], pts[:, 1:T + 1, :2].reshape(n, -1), obj, height_map), dim=-1)
+
+
+class History:
+    """A [N, T, d] frame buffer, oldest first; `push` appends the newest frame."""
+
+    def __init__(self, n: int, steps: int, dim: int, device: torch.device | str) -> None:
+        self.buf = torch.zeros(n, steps, dim, device=device)
+
+    def push(self, frame: torch.Tensor) -> None:
+        self.buf = torch.cat((self.buf[:, 1:], frame[:, None]), dim=1)
+
+    def fill(self, ids: torch.Tensor, frame: torch.Tensor) -> None:
+        """Set every step of envs ids to frame [n, d] (after a reset: no past yet)."""
+        self.buf[ids] = frame[:, None].expand(-1, self.buf.shape[1], -1)
+
+    def flat(self) -> torch.Tensor:
+        return self.buf.reshape(self.buf.shape[0], -1)
+
+    @property
+    def newest(self) -> torch.Tensor:
+        return self.buf[:, -1]

@@ -1,0 +1,172 @@
+"""detach-run end to end: run folders and their states, resume, evaluation, sweeps, tables.
+
+Runs use the puppet on the follow task with tiny settings so each takes seconds on CPU.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from detach import cli
+from detach.runs.folder import RunFolder, find_runs
+from detach.runs.mcap_log import read_episodes, read_metrics, read_scene
+
+ROOT = Path(__file__).resolve().parents[1]
+FOLLOW = str(ROOT / "configs/tasks/follow.yaml")
+TINY = ["env.character=puppet", "sim.num_envs=4", "train.num_steps_per_env=8",
+        "eval.num_envs=2", "env.episode_length=60"]
+
+
+def _only_run(out: Path) -> RunFolder:
+    runs = find_runs(out)
+    assert len(runs) == 1, runs
+    return runs[0]
+
+
+def test_finished_run_leaves_the_contracted_files(tmp_path: Path) -> None:
+    code = cli.main([FOLLOW, "--model", "mlp", "--out", str(tmp_path), "--trials", "2",
+                     "train.max_iterations=2", *TINY])
+    assert code == 0
+    run = _only_run(tmp_path)
+    assert run.path.name.endswith("-follow-mlp-s0")
+    status = run.status()
+    assert status["state"] == "finished" and status["iteration"] == 2 and status["error"] is None
+    assert run.config().env.character == "puppet"
+    assert (run.checkpoints / "model_1.pt").exists()
+    assert "evaluation on follow" in run.stdout_path.read_text()
+    metrics = read_metrics(run.log_path)
+    assert [m["iteration"] for m in metrics] == [0, 1] and metrics[0]["fps"] > 0
+    scene = read_scene(run.log_path)
+    assert len(scene["bodies"]) == 15 and scene["body_geoms"]
+    frames = read_episodes(run.log_path)[0]
+    assert len(frames) >= 2 and len(frames[0]["pos"]) == 15
+    result = run.eval_result()
+    assert result["trials"] == 2 and result["task"] == result["trained_on"] == "follow"
+    assert result["plan"] == ["traj"] and 0.0 <= result["lh_success"]["rate"] <= 1.0
+
+
+def test_crash_marks_the_run_failed(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                    capsys: pytest.CaptureFixture[str]) -> None:
+    import detach.train.session as session
+
+    def broken(*_a, **_k):
+        raise RuntimeError("injected failure")
+
+    monkeypatch.setattr(session, "build_runner", broken)
+    code = cli.main([FOLLOW, "--model", "mlp", "--out", str(tmp_path), *TINY])
+    assert code == 1
+    run = _only_run(tmp_path)
+    assert run.status()["state"] == "failed"
+    assert run.status()["error"] == "RuntimeError: injected failure"
+    assert "injected failure" in run.stdout_path.read_text()
+    assert "run failed: RuntimeError: injected failure" in capsys.readouterr().err
+
+
+def test_sigterm_interrupts_then_resume_finishes(tmp_path: Path) -> None:
+    cmd = [sys.executable, "-m", "detach.cli", FOLLOW, "--model", "mlp", "--out",
+           str(tmp_path), "--no-eval", "train.max_iterations=200", *TINY]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            cwd=ROOT)
+    deadline = time.time() + 120
+    run = None
+    while time.time() < deadline:
+        runs = find_runs(tmp_path)
+        if runs:
+            run = runs[0]
+            try:
+                if run.status().get("iteration", 0) >= 2:
+                    break
+            except (OSError, ValueError):
+                pass
+        time.sleep(0.2)
+    assert run is not None, "run folder never appeared"
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(timeout=60) == 130
+    status = run.status()
+    assert status["state"] == "interrupted" and "SIGTERM" in status["error"]
+    checkpoint = run.latest_checkpoint()
+    done = int(checkpoint.stem.split("_")[1])
+    assert done + 1 == status["iteration"], "the checkpoint is the last completed iteration"
+    code = cli.main(["--resume", str(run.path), "--no-eval", f"train.max_iterations={done + 3}"])
+    assert code == 0 and run.status()["state"] == "finished"
+    iterations = [m["iteration"] for m in read_metrics(run.log_path)]
+    assert iterations == list(range(done + 3)), "the log keeps the first part and continues"
+
+
+def test_resume_refuses_changes_that_break_checkpoints(tmp_path: Path,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main([FOLLOW, "--model", "mlp", "--out", str(tmp_path), "--no-eval",
+                     "train.max_iterations=1", *TINY]) == 0
+    run = _only_run(tmp_path)
+    assert cli.main(["--resume", str(run.path), "model.adapter_units=[8]"]) == 2
+    assert "cannot change 'model.adapter_units' when resuming" in capsys.readouterr().err
+
+
+def test_eval_on_another_task_writes_its_own_file(tmp_path: Path) -> None:
+    assert cli.main([FOLLOW, "--model", "mlp", "--out", str(tmp_path), "--no-eval",
+                     "train.max_iterations=1", *TINY]) == 0
+    run = _only_run(tmp_path)
+    sit = ROOT / "configs/tasks/sit.yaml"
+    assert cli.main(["--eval", str(run.path), "--task", str(sit), "--trials", "2"]) == 0
+    result = json.loads((run.path / "eval_sit.json").read_text())
+    assert result["task"] == "sit" and result["trained_on"] == "follow"
+    assert result["plan"] == ["sit"] and not run.eval_path.exists()
+
+
+def test_two_cell_quick_sweep_resumes_and_prints_its_table(tmp_path: Path) -> None:
+    sweep = tmp_path / "mini.yaml"
+    sweep.write_text(
+        f"name: mini\ntasks: ['{FOLLOW}']\nmodels: [mlp, tokenhsi]\nseeds: [0]\n"
+        f"eval_trials: 100\ntable: ablation\nquick:\n  eval_trials: 2\n  overrides: "
+        f"[train.max_iterations=1, {', '.join(TINY)}]\n")
+    out = tmp_path / "runs"
+    assert cli.main(["--sweep", str(sweep), "--quick", "--jobs", "2", "--out", str(out)]) == 0
+    runs = find_runs(out)
+    assert sorted(r.status()["cell"] for r in runs) == ["mini/follow/mlp/s0",
+                                                        "mini/follow/tokenhsi/s0"]
+    assert all(r.status()["state"] == "finished" and r.eval_result()["trials"] == 2
+               for r in runs)
+    stamps = {r.path: r.status_path.stat().st_mtime for r in runs}
+    assert cli.main(["--sweep", str(sweep), "--quick", "--out", str(out)]) == 0
+    assert {r.path: r.status_path.stat().st_mtime for r in find_runs(out)} == stamps
+    assert cli.main(["table", str(out), "--kind", "skills", "--task", "follow"]) == 0
+    table = (out / "tables" / "runs_skills.md").read_text()
+    assert "| MLP |" in table and "| TokenHSI |" in table
+    assert (out / "tables" / "runs_skills.csv").exists()
+    assert (out / "tables" / "runs_skills.tex").exists()
+
+
+def test_list_shows_runs_and_unreadable_folders(tmp_path: Path,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main([FOLLOW, "--model", "mlp", "--out", str(tmp_path), "--no-eval",
+                     "train.max_iterations=1", *TINY]) == 0
+    broken = tmp_path / "20260101-000000-lh1-mlp-s0"
+    broken.mkdir()
+    (broken / "status.json").write_text("{not json")
+    capsys.readouterr()
+    assert cli.main(["list", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    rows = [line.split() for line in out.splitlines()]
+    assert any(r[1:6] == ["follow", "mlp", "0", "finished", "1"] for r in rows if len(r) >= 6)
+    assert "unreadable" in out and "20260101-000000-lh1-mlp-s0:" in out
+
+
+@pytest.mark.parametrize("argv,message", [
+    (["--resume", "/nonexistent/run"], "not a run folder"),
+    (["--eval", "/nonexistent/run"], "run folder or checkpoint not found"),
+    (["table", "/nonexistent/sweep.yaml"], "sweep file or runs folder not found"),
+    ([], "missing TASK_YAML"),
+])
+def test_bad_invocations_are_one_line_errors(argv: list[str], message: str,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0]
