@@ -46,7 +46,7 @@ def test_finished_run_leaves_the_contracted_files(tmp_path: Path) -> None:
     assert [m["iteration"] for m in metrics] == [0, 1] and metrics[0]["fps"] > 0
     scene = read_scene(run.log_path)
     assert len(scene["bodies"]) == 15 and scene["body_geoms"]
-    frames = read_episodes(run.log_path)[0]
+    frames = read_episodes(run.log_path)[1]  # recorded under the checkpoint's iteration
     assert len(frames) >= 2 and len(frames[0]["pos"]) == 15
     result = run.eval_result()
     assert result["trials"] == 2 and result["task"] == result["trained_on"] == "follow"

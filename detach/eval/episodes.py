@@ -86,8 +86,12 @@ def _frame(env, plan_skills: list[str]) -> dict[str, Any]:
 
 
 def run_evaluation(env, policy: Policy, trials: int, cfg: RunConfig,
-                   log: RunLogWriter | None = None, progress: bool = True) -> dict[str, Any]:
-    """Roll out `trials` episodes (quota per env) and summarise them as eval.json data."""
+                   log: RunLogWriter | None = None, progress: bool = True,
+                   episode_id: int = 0) -> dict[str, Any]:
+    """Roll out `trials` episodes (quota per env) and summarise them as eval.json data.
+
+    With a `log`, env 0's first episode is recorded as /episode/bodies episode `episode_id`
+    (the checkpoint's iteration, so evaluations of successive checkpoints stay apart)."""
     from detach.envs.humanoid import BODY_NAMES
 
     n = env.num_envs
@@ -105,7 +109,7 @@ def run_evaluation(env, policy: Policy, trials: int, cfg: RunConfig,
         while len(outcomes) < trials:
             if recording:
                 f = _frame(env, plan_skills)
-                log.log_frame(0, frame, frame * env.dt, BODY_NAMES, f["pos"], f["quat"],
+                log.log_frame(episode_id, frame, frame * env.dt, BODY_NAMES, f["pos"], f["quat"],
                               f["objects"], f["subtask"], f["skill"])
                 frame += 1
             obs, _rew, dones, extras = env.step(policy(obs))

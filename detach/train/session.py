@@ -166,7 +166,8 @@ def evaluate_run(run: RunFolder, task_path: Path | None, checkpoint: Path | None
     own = cfg.task_name == train_cfg.task_name
     log = RunLogWriter(run.log_path, append=True) if own else None
     try:
-        result = run_evaluation(env, lambda obs: actor(obs), trials, cfg, log=log)
+        result = run_evaluation(env, lambda obs: actor(obs), trials, cfg, log=log,
+                                episode_id=max(int(state.get("iter", 0)), 0))
     finally:
         if log is not None:
             log.close()

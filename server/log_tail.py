@@ -1,0 +1,393 @@
+"""Incremental reader of a run's log.mcap: each refresh reads only the bytes added since.
+
+Why not `detach.runs.mcap_log.iter_messages`: it decompresses and parses the whole file on
+every call (a 100 MB log takes seconds), and MCAP's own indexes sit in the summary section,
+which exists only after the writer closed the file. This reader walks the top-level records
+from the offset it reached last time. After every chunk the writer puts MessageIndex
+records (channel id -> offsets of its messages inside the chunk), so a chunk that holds
+only /episode/bodies and /tf messages is skipped without decompressing it; its offset is
+remembered, so loading one episode later decompresses only that episode's chunks.
+
+Record layout (MCAP spec): opcode u8, length u64, content. Integers are little-endian;
+strings are u32 length + UTF-8. A record that extends past the end of the file is a
+still-growing (or truncated) tail: reading stops before it and resumes there next time.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import struct
+import threading
+from collections import OrderedDict
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import lz4.frame
+import numpy as np
+import zstandard
+
+from server.episode import Episode, episode_from_frames
+
+MAGIC = b"\x89MCAP0\r\n"
+HEADER, FOOTER, SCHEMA, CHANNEL, MESSAGE, CHUNK, MESSAGE_INDEX = 1, 2, 3, 4, 5, 6, 7
+LAST_OPCODE = 0x0F
+"""Highest opcode of MCAP v0 (DataEnd); anything above (or 0) means the bytes are corrupt."""
+_REC = struct.Struct("<BQ")
+_MSG_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
+_DATA_AT = _REC.size + _MSG_HEAD.size
+"""Offset of a message's payload from the start of its record."""
+_EPISODE_RE = re.compile(rb'\{"episode":(-?\d+)')
+BODIES, METRICS, SCENE = "/episode/bodies", "/metrics", "/scene"
+
+
+@dataclass
+class ChunkRef:
+    """Where the /episode/bodies messages of one chunk are; decoded lazily."""
+
+    data_offset: int
+    """File offset of the (compressed) chunk records."""
+    data_length: int
+    compression: str
+    uncompressed_size: int
+    bodies: list[int]
+    """Offsets of the /episode/bodies message records inside the uncompressed records."""
+    episodes: list[int] | None = None
+    """Episode number of each message in `bodies`, once the chunk was decoded."""
+
+
+_local = threading.local()
+
+
+def _decompress(data: bytes, compression: str, size: int) -> bytes:
+    if compression == "zstd":
+        # One decompressor per thread: creating one costs more than a small chunk's work,
+        # and an instance must not be shared between threads.
+        zstd = getattr(_local, "zstd", None)
+        if zstd is None:
+            zstd = _local.zstd = zstandard.ZstdDecompressor()
+        return zstd.decompress(data, max_output_size=size)
+    if compression == "lz4":
+        return lz4.frame.decompress(data)
+    if compression == "":
+        return data
+    raise ValueError(f"unsupported chunk compression {compression!r}")
+
+
+def _string(buf: bytes | memoryview, at: int) -> tuple[str, int]:
+    (n,) = struct.unpack_from("<I", buf, at)
+    return bytes(buf[at + 4: at + 4 + n]).decode("utf-8"), at + 4 + n
+
+
+class LogTail:
+    """Metrics, scene and an episode index of one log.mcap, kept up to date cheaply.
+
+    Thread-safe: the dashboard's poller and its scene loader share one instance.
+    """
+
+    def __init__(self, path: Path, chunk_cache: int = 16) -> None:
+        self.path = Path(path)
+        self._lock = threading.RLock()
+        self._cache: OrderedDict[int, bytes] = OrderedDict()
+        self._cache_size = chunk_cache
+        self._reset()
+
+    def _reset(self) -> None:
+        self.offset = 0
+        """File offset up to which every record has been read."""
+        self.size = 0
+        self.inode: int | None = None
+        self.channels: dict[int, str] = {}
+        self.metrics: list[dict[str, Any]] = []
+        self.scene: dict[str, Any] | None = None
+        self.chunks: list[ChunkRef] = []
+        self.complete = False
+        """The footer and the closing magic were read: the writer closed the file."""
+        self._expect_magic = True
+        self.problem: str | None = None
+        """Why reading stopped for good (corrupt bytes); None while everything parses."""
+        self.version = 0
+        """Bumped whenever new messages were read (cheap change detection for callers)."""
+        self._cache.clear()
+
+    # --- scanning -----------------------------------------------------------------------
+    def refresh(self) -> bool:
+        """Read what was appended since the last call; True if anything new was read."""
+        with self._lock:
+            try:
+                st = os.stat(self.path)
+            except OSError:
+                if self.inode is not None:
+                    self._reset()
+                    return True
+                return False
+            if st.st_ino != self.inode or st.st_size < self.size:
+                self._reset()  # replaced or rewritten: start over
+                self.inode = st.st_ino
+            self.size = st.st_size
+            if self.problem is not None or self.offset >= self.size:
+                return False
+            before = (len(self.metrics), len(self.chunks), self.scene is not None,
+                      self.complete)
+            with open(self.path, "rb") as f:
+                self._scan(f, st.st_size)
+            changed = before != (len(self.metrics), len(self.chunks),
+                                 self.scene is not None, self.complete)
+            if changed:
+                self.version += 1
+            return changed
+
+    @property
+    def pending_bytes(self) -> int:
+        """Bytes after the last complete record (a growing or truncated tail)."""
+        return max(0, self.size - self.offset)
+
+    def _scan(self, f, size: int) -> None:
+        pending: tuple[int, int, str, int] | None = None  # chunk awaiting its indexes
+        indexes: dict[int, list[int]] = {}
+        pos = self.offset
+        while True:
+            if self._expect_magic:  # start of the file, or of a stream appended on resume
+                if pos + len(MAGIC) > size:
+                    break
+                f.seek(pos)
+                if f.read(len(MAGIC)) != MAGIC:
+                    self.problem = (f"log.mcap: {size - pos} unexpected bytes after the footer"
+                                    if pos else "log.mcap: not an MCAP file (bad magic bytes)")
+                    break
+                pos = self.offset = pos + len(MAGIC)
+                self._expect_magic = self.complete = False
+                continue
+            if pos + _REC.size > size:
+                break
+            f.seek(pos)
+            opcode, length = _REC.unpack(f.read(_REC.size))
+            if opcode == 0 or opcode > LAST_OPCODE:
+                self.problem = (f"log.mcap: corrupt record at byte {pos} (opcode {opcode}); "
+                                f"showing what was read before it")
+                break
+            end = pos + _REC.size + length
+            if end > size:
+                break  # the tail is still being written (or was cut off)
+            if opcode == MESSAGE_INDEX:
+                if pending is not None:
+                    content = f.read(length)
+                    (channel,) = struct.unpack_from("<H", content)
+                    entries = np.frombuffer(content, dtype="<u8", offset=6)
+                    indexes[channel] = entries[1::2].astype(np.int64).tolist()
+                pos = self.offset = end
+                continue
+            if pending is not None:
+                self._finish_chunk(f, pending, indexes)
+                pending, indexes = None, {}
+                f.seek(pos + _REC.size)
+            if opcode == CHUNK:
+                pending = self._chunk_header(f, pos, length)
+            elif opcode == CHANNEL:
+                self._channel(f.read(length))
+            elif opcode == MESSAGE:
+                self._top_level_message(f.read(length), pos, length)
+            elif opcode == FOOTER:
+                f.seek(end)
+                closing = f.read(len(MAGIC))
+                if len(closing) < len(MAGIC):
+                    break  # the closing magic is not there yet
+                if closing != MAGIC:
+                    self.problem = f"log.mcap: bad closing magic at byte {end}"
+                    break
+                end += len(MAGIC)
+                self.complete = self._expect_magic = True
+            pos = self.offset = end
+        if pending is not None:
+            # Its indexes may still be on their way (or never come): decode the chunk itself.
+            self._finish_chunk(f, pending, {}, trust_index=False)
+
+    def _chunk_header(self, f, pos: int, length: int) -> tuple[int, int, str, int]:
+        head = f.read(min(length, 64))
+        (usize,) = struct.unpack_from("<Q", head, 16)
+        compression, at = _string(head, 28)
+        (data_len,) = struct.unpack_from("<Q", head, at)
+        return pos + _REC.size + at + 8, data_len, compression, usize
+
+    def _finish_chunk(self, f, chunk: tuple[int, int, str, int], indexes: dict[int, list[int]],
+                      trust_index: bool = True) -> None:
+        """Use the chunk's MessageIndex records if they name only known channels, else decode it."""
+        data_offset, data_len, compression, usize = chunk
+        topics = {self.channels.get(c) for c in indexes}
+        if trust_index and indexes and None not in topics:
+            by_topic: dict[str, list[int]] = {}
+            for c, offs in indexes.items():
+                by_topic.setdefault(self.channels[c], []).extend(offs)
+            bodies = sorted(by_topic.get(BODIES, []))
+            if bodies:
+                self.chunks.append(ChunkRef(data_offset, data_len, compression, usize, bodies))
+            wanted = sorted(by_topic.get(METRICS, []) + by_topic.get(SCENE, []))
+            if not wanted:
+                return
+            records = self._read_chunk(f, data_offset, data_len, compression, usize)
+            if records is None:
+                return
+            for off in wanted:
+                self._message(records, off)
+            return
+        records = self._read_chunk(f, data_offset, data_len, compression, usize)
+        if records is None:
+            return
+        bodies = self._scan_records(records)
+        if bodies:
+            self.chunks.append(ChunkRef(data_offset, data_len, compression, usize, bodies))
+
+    def _read_chunk(self, f, data_offset: int, data_len: int, compression: str,
+                    usize: int) -> bytes | None:
+        f.seek(data_offset)
+        try:
+            return _decompress(f.read(data_len), compression, usize)
+        except Exception as exc:  # noqa: BLE001 - one bad chunk must not hide the rest
+            self.problem = self.problem or (
+                f"log.mcap: chunk at byte {data_offset} does not decompress ({exc}); skipped")
+            return None
+
+    def _scan_records(self, records: bytes) -> list[int]:
+        """Channels, metrics and scene from decoded chunk records; offsets of body frames."""
+        bodies, at, n = [], 0, len(records)
+        while at + _REC.size <= n:
+            opcode, length = _REC.unpack_from(records, at)
+            if at + _REC.size + length > n:
+                break
+            if opcode == CHANNEL:
+                self._channel(records[at + _REC.size: at + _REC.size + length])
+            elif opcode == MESSAGE:
+                (channel,) = struct.unpack_from("<H", records, at + _REC.size)
+                if self.channels.get(channel) == BODIES:
+                    bodies.append(at)
+                else:
+                    self._message(records, at)
+            at += _REC.size + length
+        return bodies
+
+    def _channel(self, content: bytes) -> None:
+        channel_id, _schema = struct.unpack_from("<HH", content)
+        topic, _ = _string(content, 4)
+        self.channels[channel_id] = topic
+
+    def _message(self, records: bytes, at: int) -> None:
+        """Parse one /metrics or /scene message record at `at` (others are ignored)."""
+        _op, length = _REC.unpack_from(records, at)
+        (channel,) = struct.unpack_from("<H", records, at + _REC.size)
+        topic = self.channels.get(channel)
+        if topic not in (METRICS, SCENE):
+            return
+        try:
+            msg = json.loads(records[at + _DATA_AT: at + _REC.size + length])
+        except ValueError:
+            return
+        if not isinstance(msg, dict):
+            return
+        if topic == METRICS:
+            self.metrics.append(msg)
+        else:  # the latest: an evaluation appended to the log records its scene again
+            self.scene = msg
+
+    def _top_level_message(self, content: bytes, pos: int, length: int) -> None:
+        """Messages outside chunks (an unchunked writer): treat each as a one-record chunk."""
+        record = _REC.pack(MESSAGE, length) + content
+        (channel,) = struct.unpack_from("<H", content)
+        if self.channels.get(channel) == BODIES:
+            self.chunks.append(ChunkRef(pos, len(record), "", len(record), [0]))
+        else:
+            self._message(record, 0)
+
+    # --- episodes -----------------------------------------------------------------------
+    def _records(self, chunk: ChunkRef) -> bytes:
+        cached = self._cache.get(chunk.data_offset)
+        if cached is not None:
+            self._cache.move_to_end(chunk.data_offset)
+            return cached
+        with open(self.path, "rb") as f:
+            f.seek(chunk.data_offset)
+            raw = f.read(chunk.data_length)
+        data = _decompress(raw, chunk.compression, chunk.uncompressed_size)
+        self._cache[chunk.data_offset] = data
+        while len(self._cache) > self._cache_size:
+            self._cache.popitem(last=False)
+        return data
+
+    def _episodes_of(self, chunk: ChunkRef) -> list[int]:
+        if chunk.episodes is None:
+            try:
+                records = self._records(chunk)
+            except Exception:  # noqa: BLE001 - an undecodable chunk holds no episode
+                chunk.episodes = [-1] * len(chunk.bodies)
+                return chunk.episodes
+            eps = []
+            for at in chunk.bodies:
+                m = _EPISODE_RE.match(records, at + _DATA_AT)
+                if m is None:  # not our writer's key order: parse the message
+                    msg = self._payload(records, at)
+                    eps.append(int(msg.get("episode", -1)) if msg else -1)
+                else:
+                    eps.append(int(m.group(1)))
+            chunk.episodes = eps
+        return chunk.episodes
+
+    @staticmethod
+    def _payload(records: bytes, at: int) -> dict[str, Any] | None:
+        _op, length = _REC.unpack_from(records, at)
+        try:
+            msg = json.loads(records[at + _DATA_AT: at + _REC.size + length])
+        except ValueError:
+            return None
+        return msg if isinstance(msg, dict) else None
+
+    def episode_numbers(self) -> list[int]:
+        """All episode numbers in the file (decodes each frame chunk once, then cached)."""
+        with self._lock:
+            found: set[int] = set()
+            for chunk in self.chunks:
+                found.update(self._episodes_of(chunk))
+            found.discard(-1)
+            return sorted(found)
+
+    def newest_episode(self) -> int | None:
+        """Episode of the last frame in the file; decodes only the last frame chunk."""
+        with self._lock:
+            for chunk in reversed(self.chunks):
+                eps = [e for e in self._episodes_of(chunk) if e >= 0]
+                if eps:
+                    return eps[-1]
+            return None
+
+    def load_episode(self, number: int | None = None) -> Episode | None:
+        """Frames of episode `number` (default: the newest) as arrays.
+
+        The newest episode is found by walking back from the end of the file, so a long log
+        costs only the chunks of that episode; any other episode needs the full index
+        (built once per chunk and cached).
+        """
+        with self._lock:
+            if number is None:
+                number = self.newest_episode()
+                if number is None:
+                    return None
+                chunks, seen = [], False
+                for chunk in reversed(self.chunks):
+                    has = number in self._episodes_of(chunk)
+                    if has:
+                        chunks.append(chunk)
+                        seen = True
+                    elif seen:
+                        break
+                chunks.reverse()
+            else:
+                chunks = [c for c in self.chunks if number in self._episodes_of(c)]
+            frames = []
+            for chunk in chunks:
+                records = self._records(chunk)
+                for at, ep in zip(chunk.bodies, chunk.episodes or []):
+                    if ep == number:
+                        msg = self._payload(records, at)
+                        if msg is not None:
+                            frames.append(msg)
+            return episode_from_frames(number, frames) if frames else None

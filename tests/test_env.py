@@ -1,0 +1,169 @@
+"""The batched LH environment: VecEnv contract, observation sizes, plan transitions,
+terminations, and the oracle / random figures at small trial counts."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+import torch
+from rsl_rl.env import VecEnv
+from tensordict import TensorDict
+
+from detach.config import resolve
+from detach.config_schema import HumanoidCfg, TaskCfg
+from detach.envs import success as S
+from detach.envs.lh_env import make_env
+from detach.envs.oracle import PuppetOracle, evaluate, random_policy
+from detach.envs.plan import compile_plan
+from detach.envs.rewards import RewardManager
+
+TASKS = Path(__file__).resolve().parents[1] / "configs" / "tasks"
+torch.set_num_threads(1)
+
+
+def cfg_of(task: str, *overrides: str):
+    return resolve(TASKS / f"{task}.yaml", "mlp", list(overrides))
+
+
+@pytest.fixture(scope="module")
+def lh_envs():
+    return {t: make_env(cfg_of(t), num_envs=2) for t in ("lh1", "lh2", "lh3")}
+
+
+def test_vecenv_contract_and_obs_sizes_equal_across_lh(lh_envs):
+    specs = {t: e.obs_spec for t, e in lh_envs.items()}
+    assert len(set(specs.values())) == 1, specs
+    for env in lh_envs.values():
+        assert isinstance(env, VecEnv) and env.num_actions == 32 and env.max_episode_length == 1200
+        obs = env.get_observations()
+        assert isinstance(obs, TensorDict) and obs.batch_size == torch.Size([2])
+        assert {k: v.shape[1] for k, v in obs.items()} == env.obs_spec.group_dims()
+        obs, rew, dones, extras = env.step(torch.zeros(2, env.num_actions))
+        assert rew.shape == (2,) and dones.shape == (2,) and extras["time_outs"].shape == (2,)
+        assert all(torch.isfinite(v).all() for v in obs.values())
+        assert any(k.startswith("Reward/") for k in extras["log"])
+    sp = specs["lh1"]
+    assert (sp.self_dim, sp.env_dim, sp.amp_dim, sp.num_skills) == (287, 681, 89, 4)
+
+
+def test_height_map_sees_static_objects():
+    env = make_env(cfg_of("climb", "env.character=puppet", "humanoid.init_rot_randomize=false"), num_envs=1)
+    # climb.yaml: a 0.5 m platform centred 2.5 m ahead of the start, footprint 1.2 m
+    hm = env.get_observations()["env"].reshape(5, -1)[-1, -625:].reshape(25, 25)
+    assert hm[12, 12] == pytest.approx(0.0)  # under the pelvis: floor
+    assert hm[24, 12] == pytest.approx(0.0)  # 1.2 m ahead: still floor (platform edge at 1.9 m)
+    qpos = env.backend.qpos[:1].clone()
+    qpos[0, 0] = 1.6  # now the platform edge is 0.3 m ahead
+    env.backend.write_qpos(torch.tensor([0]), qpos)
+    obs, *_ = env.step(torch.zeros(1, env.num_actions))
+    hm = obs["env"].reshape(5, -1)[-1, -625:].reshape(25, 25)
+    assert hm[24, 12] == pytest.approx(0.5, abs=0.01) and hm[12, 12] == pytest.approx(0.0, abs=0.01)
+
+
+def _two_point_plan_cfg(**env_kw):
+    base = cfg_of("follow", "env.character=puppet")
+    task = TaskCfg(name="hold_test", trajectories={0: ((0.0, 0.0),), 1: ((0.0, 0.0), (8.0, 0.0))},
+                   humanoid=HumanoidCfg(init_pos2d=(0.0, 0.0), init_rot_randomize=False),
+                   plan=("traj", "traj"), target_object=(0, 0), sample_target_from=("traj_0", "traj_1"))
+    return dataclasses.replace(base, task=task, env=dataclasses.replace(base.env, **env_kw))
+
+
+@pytest.mark.parametrize("eval_mode,hold", [(False, 60), (True, 20)])
+def test_transition_fires_exactly_after_hold_time(eval_mode, hold):
+    env = make_env(_two_point_plan_cfg(), num_envs=2, eval_mode=eval_mode)
+    assert env.max_transition_steps == hold
+    still = torch.zeros(2, env.num_actions)  # the puppet stands on trajectory 0's only point
+    for k in range(1, hold):
+        env.step(still)
+        assert env.subtask.tolist() == [0, 0] and env.hold.tolist() == [k, k]
+    _, _, dones, _ = env.step(still)
+    assert env.subtask.tolist() == [1, 1] and not dones.any()
+    prog = env.progress()
+    assert prog["end"][:, 0].tolist() == [hold, hold] and prog["start"][:, 1].tolist() == [hold, hold]
+    assert prog["done"][:, 0].all() and not prog["done"][:, 1].any()
+
+
+def test_iet_and_time_out():
+    env = make_env(dataclasses.replace(_two_point_plan_cfg(), task=dataclasses.replace(
+        _two_point_plan_cfg().task, plan=("traj",), target_object=(0,), sample_target_from=("traj_0",))),
+        num_envs=1, eval_mode=True)
+    for _ in range(19):
+        _, _, dones, _ = env.step(torch.zeros(1, env.num_actions))
+        assert not dones.any()
+    _, _, dones, extras = env.step(torch.zeros(1, env.num_actions))  # last subtask held: IET
+    assert dones.all() and extras["time_outs"].all()
+    assert extras["episode_progress"]["lh_success"].all() and env.episode_length_buf.item() == 0
+    short = make_env(_two_point_plan_cfg(episode_length=5), num_envs=1)
+    for _ in range(5):
+        _, _, dones, extras = short.step(torch.zeros(1, short.num_actions))
+    assert dones.all() and extras["time_outs"].all() and extras["log"]["Episode/length"].item() == 5
+
+
+def test_fall_terminates_and_resets():
+    env = make_env(cfg_of("follow", "humanoid.init_rot_randomize=false"), num_envs=2)
+    gen = torch.Generator().manual_seed(1)
+    for _ in range(300):
+        a = torch.rand(2, env.num_actions, generator=gen) * 2 - 1
+        _, _, dones, extras = env.step(a)
+        if dones.any():
+            break
+    assert dones.any(), "random PD targets should topple the humanoid within 10 s"
+    prog = extras["episode_progress"]
+    i = int(dones.nonzero()[0])
+    assert prog["fell"][i] and not extras["time_outs"][i]
+    assert env.episode_length_buf[i] == 0
+    assert env._last_state.root_pos[i, 2] == pytest.approx(0.94, abs=1e-3)
+
+
+def test_traj_deviation_terminates():
+    env = make_env(_two_point_plan_cfg(), num_envs=1)
+    env.subtask[:] = 1  # trajectory 1 runs to x = 8 m at 1.45 m/s; standing still falls behind
+    env._start_subtask(torch.tensor([0]), torch.zeros(1, 2))
+    for t in range(200):
+        _, _, dones, extras = env.step(torch.zeros(1, env.num_actions))
+        if dones.any():
+            break
+    assert extras["episode_progress"]["traj_failed"].all() and not extras["time_outs"].any()
+    assert 2.5 < t * env.dt < 3.2  # 4 m at 1.45 m/s
+
+
+def test_plan_errors_are_one_line():
+    bad = TaskCfg(name="t", plan=("carry",), target_object=(0,), sample_target_from=("scene_0",))
+    with pytest.raises(ValueError, match="scene_K names the box itself"):
+        compile_plan(dataclasses.replace(bad, scene=cfg_of("carry").task.scene))
+    with pytest.raises(ValueError, match="unknown term"):
+        RewardManager(dataclasses.replace(cfg_of("follow").rewards, terms={"sit/sea": 1.0}))
+
+
+def test_success_scores():
+    skills = torch.tensor([S.TRAJ, S.CARRY, S.SIT])
+    done = torch.tensor([[True, False, False], [True, True, True]])
+    grasped = torch.tensor([[False, True, False], [False, True, False]])
+    on_path = torch.tensor([[95, 0, 0], [50, 0, 0]])
+    steps = torch.tensor([[100, 0, 0], [100, 0, 0]])
+    sc = S.subtask_scores(skills, done, grasped, on_path, steps, 0.9)
+    assert sc.tolist() == [[1.0, 0.5, 0.0], [0.0, 1.0, 1.0]]
+    assert S.lh_success(sc).tolist() == [False, False]
+    root = torch.tensor([[0.0, 0.0, 2.0], [0.0, 0.0, 1.0]])
+    tgt = torch.tensor([[0.1, 0.0, 1.6], [0.0, 0.0, 1.6]])
+    assert S.climb_distance(root, tgt).tolist() == pytest.approx([0.1, 0.6])
+
+
+@pytest.mark.parametrize("task", ["lh1", "lh2", "lh3"])
+def test_oracle_succeeds_and_random_fails(task):
+    env = make_env(cfg_of(task, "env.character=puppet"), num_envs=4, eval_mode=True)
+    res = evaluate(env, PuppetOracle(env), trials=4)
+    assert res["lh_success"] == 1.0, res["subtask_success"]
+    assert res["exec_time"] < 40.0
+    rnd = evaluate(env, random_policy(env), trials=8)
+    assert rnd["lh_success"] == 0.0
+
+
+def test_preview_cli_prints_the_oracle_timeline(capsys):
+    from detach.envs.preview import main
+
+    assert main([str(TASKS / "lh1.yaml"), "--oracle"]) == 0
+    out = capsys.readouterr().out
+    assert "subtask 2 (climb) complete -> 3 (sit)" in out and "LH success: True" in out
