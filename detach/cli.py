@@ -78,6 +78,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="with --sweep: use the sweep's quick preset (CPU smoke run)")
     parser.add_argument("--jobs", type=int, default=1,
                         help="with --sweep: cells run in parallel (default: 1)")
+    parser.add_argument("--launcher", choices=["local", "ray"], default="local",
+                        help="with --sweep: a local worker pool, or Ray tasks (the cluster "
+                             "of RAY_ADDRESS, else a local Ray); needs the [ray] extra")
     parser.add_argument("--cell", help=argparse.SUPPRESS)
     return parser
 
@@ -147,7 +150,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.sweep:
             from detach.runs.sweep import run_sweep
 
-            failed = run_sweep(args.sweep, args.out, args.jobs, args.quick, args.device)
+            failed = run_sweep(args.sweep, args.out, args.jobs, args.quick, args.device,
+                               args.launcher)
             return 1 if failed else 0
         if args.resume:
             return _resume(args)

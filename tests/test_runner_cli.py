@@ -170,3 +170,22 @@ def test_bad_invocations_are_one_line_errors(argv: list[str], message: str,
     assert cli.main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0]
+
+
+@pytest.mark.slow
+def test_sweep_on_a_local_ray(tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    sweep = tmp_path / "rayed.yaml"
+    sweep.write_text(
+        f"name: rayed\ntasks: ['{FOLLOW}']\nmodels: [mlp, cml]\nseeds: [0]\n"
+        f"eval_trials: 2\noverrides: [train.max_iterations=1, {', '.join(TINY)}]\n")
+    out = tmp_path / "runs"
+    code = cli.main(["--sweep", str(sweep), "--launcher", "ray", "--jobs", "2", "--out", str(out)])
+    import ray
+
+    ray.shutdown()
+    assert code == 0
+    runs = find_runs(out)
+    assert sorted(r.status()["cell"] for r in runs) == ["rayed/follow/cml/s0",
+                                                        "rayed/follow/mlp/s0"]
+    assert all(r.status()["state"] == "finished" and r.eval_result() for r in runs)

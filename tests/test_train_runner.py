@@ -69,3 +69,20 @@ def test_sigterm_checkpoints_then_stops(tmp_path: Path) -> None:
     assert runner.completed_iteration == 1
     assert (tmp_path / "model_1.pt").exists()
     assert signal.getsignal(signal.SIGTERM) is before, "the previous handler is restored"
+
+
+@pytest.mark.parametrize("total,expected", [
+    (1000, [("pretrain", 100), ("fusion", 400), ("joint", 500)]),
+    (10, [("pretrain", 1), ("fusion", 4), ("joint", 5)]),
+    (3, [("pretrain", 1), ("fusion", 1), ("joint", 1)]),
+    (2, [("fusion", 1), ("joint", 1)]),
+    (7, [("pretrain", 1), ("fusion", 3), ("joint", 3)]),
+])
+def test_stage_schedule_scales_and_keeps_every_stage(total, expected) -> None:
+    from detach.config_schema import StagesCfg
+    from detach.train.schedule import stage_at, stage_lengths
+
+    schedule = stage_lengths(StagesCfg(100, 400, 500), total)
+    assert schedule == expected and sum(k for _n, k in schedule) == total
+    assert [stage_at(schedule, i) for i in range(total)][-1] == "joint"
+    assert stage_lengths(StagesCfg(), 5) == [("ppo", 5)]

@@ -65,6 +65,12 @@ def traj_position(ctx: RewardContext) -> torch.Tensor:
     return torch.exp(-2.0 * d2)
 
 
+def traj_velocity(ctx: RewardContext) -> torch.Tensor:
+    """Speed toward the reference point: a dense signal when the character lags behind,
+    where exp(-2 d^2) is flat (1 within `NEAR`)."""
+    return _approach_velocity(ctx.root_lin, ctx.root_pos, ctx.ref_xy)
+
+
 def carry_walk_to_box(ctx: RewardContext) -> torch.Tensor:
     r = _approach(ctx, ctx.obj_pos)
     delivered = (ctx.obj_pos[:, :2] - ctx.target[:, :2]).norm(dim=-1) < NEAR
@@ -100,7 +106,8 @@ def sit_seat(ctx: RewardContext) -> torch.Tensor:
 
 
 TERMS: dict[str, tuple[Callable[[RewardContext], torch.Tensor], float]] = {
-    "traj/position": (traj_position, 1.0),
+    "traj/position": (traj_position, 0.6),
+    "traj/velocity": (traj_velocity, 0.4),
     "carry/walk_to_box": (carry_walk_to_box, 0.2),
     "carry/box_height": (carry_box_height, 0.2),
     "carry/box_to_target": (carry_box_to_target, 0.6),

@@ -8,13 +8,13 @@ Observation sets: {"actor": ["self", "env", "task"], "critic": ["self", "env", "
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 from rsl_rl.utils import resolve_class
 from tensordict import TensorDict
 
 from detach.config_schema import ModelCfg
+from detach.config_validate import to_plain
 from detach.envs.obs_spec import ObsSpec
 from detach.models.rsl_rl_models import (
     CMLModel,
@@ -39,17 +39,6 @@ DEFAULT_OBS_GROUPS: dict[str, list[str]] = {
 GAUSSIAN = "rsl_rl.modules.distribution:GaussianDistribution"
 
 
-def _plain(obj: Any) -> Any:
-    """Dataclasses/tuples -> dicts/lists (YAML- and deepcopy-friendly)."""
-    if dataclasses.is_dataclass(obj):
-        return {f.name: _plain(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
-    if isinstance(obj, (list, tuple)):
-        return [_plain(v) for v in obj]
-    if isinstance(obj, dict):
-        return {k: _plain(v) for k, v in obj.items()}
-    return obj
-
-
 def class_path(cls: type) -> str:
     """'package.module:Class', the form rsl-rl's resolve_class accepts."""
     return f"{cls.__module__}:{cls.__qualname__}"
@@ -67,11 +56,11 @@ def rsl_rl_model_cfgs(model_cfg: ModelCfg, obs_spec: ObsSpec) -> tuple[dict, dic
     common = {
         "class_name": class_path(MODEL_CLASSES[model_cfg.kind]),
         "obs_spec": obs_spec.to_dict(),
-        "model": _plain(model_cfg),
+        "model": to_plain(model_cfg),
     }
     actor = {**common, "distribution_cfg": {"class_name": GAUSSIAN, "init_std": model_cfg.init_noise_std}}
-    critic = {**_plain(common), "value_objectives": list(model_cfg.critic_objectives)}
-    return _plain(actor), critic
+    critic = {**to_plain(common), "value_objectives": list(model_cfg.critic_objectives)}
+    return to_plain(actor), critic
 
 
 def build_actor_critic(

@@ -9,6 +9,7 @@ resumes interrupted or failed ones. Cells run as `detach-run` subprocesses on a 
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
@@ -107,8 +108,53 @@ def cell_command(cell: Cell, sweep: SweepCfg, sweep_path: Path, out: Path,
             *sweep.overrides]
 
 
+def _run_command(cmd: list[str], cwd: str) -> int:
+    return subprocess.run(cmd, cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                          text=True).returncode
+
+
+def _launch_local(pending: list[tuple[Cell, list[str]]], jobs: int) -> list[int]:
+    def launch(item: tuple[Cell, list[str]]) -> int:
+        cell, cmd = item
+        print(f"[{cell.key}] start", flush=True)
+        code = _run_command(cmd, os.getcwd())
+        print(f"[{cell.key}] {'done' if code == 0 else f'FAILED (exit {code})'}", flush=True)
+        return code
+
+    with ThreadPoolExecutor(max_workers=max(jobs, 1)) as pool:
+        return list(pool.map(launch, pending))
+
+
+def _launch_ray(pending: list[tuple[Cell, list[str]]], jobs: int) -> list[int]:
+    """Each cell as a Ray task (one CPU each) running the same `detach-run` command.
+
+    Joins the cluster of `RAY_ADDRESS` if set, else starts a local Ray with `jobs` CPUs.
+    On a real cluster, `--out` must be a filesystem every node sees and the project must be
+    installed on every node (the command uses the driver's Python path).
+    """
+    try:
+        import ray
+    except ImportError:
+        raise ConfigError("--launcher ray needs Ray: pip install 'detach[ray]'") from None
+    if not ray.is_initialized():
+        address = os.environ.get("RAY_ADDRESS")
+        ray.init(address=address, num_cpus=None if address else max(jobs, 1),
+                 include_dashboard=False, log_to_driver=False)
+    remote = ray.remote(num_cpus=1)(_run_command)
+    refs = [remote.remote(cmd, os.getcwd()) for _cell, cmd in pending]
+    for cell, _cmd in pending:
+        print(f"[{cell.key}] submitted", flush=True)
+    codes = ray.get(refs)
+    for (cell, _cmd), code in zip(pending, codes):
+        print(f"[{cell.key}] {'done' if code == 0 else f'FAILED (exit {code})'}", flush=True)
+    return codes
+
+
+LAUNCHERS = {"local": _launch_local, "ray": _launch_ray}
+
+
 def run_sweep(sweep_path: Path, out: Path, jobs: int = 1, quick: bool = False,
-              device: str = "cpu") -> int:
+              device: str = "cpu", launcher: str = "local") -> int:
     """Run every unfinished cell; returns the number of cells that failed."""
     sweep = load_sweep(sweep_path, quick)
     done = existing_runs(out)
@@ -116,16 +162,7 @@ def run_sweep(sweep_path: Path, out: Path, jobs: int = 1, quick: bool = False,
             for c in cells(sweep, sweep_path)]
     pending = [(c, cmd) for c, cmd in todo if cmd is not None]
     print(f"sweep {sweep.name}: {len(todo)} cells, {len(todo) - len(pending)} finished, "
-          f"{len(pending)} to run with {jobs} job(s)")
+          f"{len(pending)} to run with {jobs} job(s) ({launcher})")
 
-    def launch(item: tuple[Cell, list[str]]) -> tuple[Cell, int]:
-        cell, cmd = item
-        print(f"[{cell.key}] start", flush=True)
-        code = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                              text=True).returncode
-        print(f"[{cell.key}] {'done' if code == 0 else f'FAILED (exit {code})'}", flush=True)
-        return cell, code
-
-    with ThreadPoolExecutor(max_workers=max(jobs, 1)) as pool:
-        results = list(pool.map(launch, pending))
-    return sum(1 for _c, code in results if code != 0)
+    codes = LAUNCHERS[launcher](pending, jobs) if pending else []
+    return sum(1 for code in codes if code != 0)

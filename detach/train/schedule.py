@@ -22,14 +22,17 @@ def stage_lengths(stages: StagesCfg, total: int) -> list[tuple[str, int]]:
     configured = sum(k for _n, k in lengths)
     if configured == total:
         return lengths
-    scaled = [(n, max(1, round(k * total / configured))) for n, k in lengths]
-    # Give the rounding remainder to the last stage (it is the one that trains everything).
-    excess = sum(k for _n, k in scaled) - total
-    name, last = scaled[-1]
-    scaled[-1] = (name, max(1, last - excess))
-    while sum(k for _n, k in scaled) > total and len(scaled) > 1:
-        scaled.pop(0)
-    return scaled
+    scaled = [[n, max(1, round(k * total / configured))] for n, k in lengths]
+    # Fix rounding on the longest stages; keep every stage while there is room for it.
+    while sum(k for _n, k in scaled) > total:
+        longest = max(scaled, key=lambda nk: nk[1])
+        if longest[1] > 1:
+            longest[1] -= 1
+        else:
+            scaled.pop(0)  # fewer iterations than stages: the earliest stages go first
+    while sum(k for _n, k in scaled) < total:
+        max(scaled, key=lambda nk: nk[1])[1] += 1
+    return [(n, k) for n, k in scaled]
 
 
 def stage_at(schedule: list[tuple[str, int]], iteration: int) -> str:
