@@ -194,6 +194,7 @@ def _resume(args: argparse.Namespace) -> int:
         raise ConfigError("not a run folder (no config.yaml)", str(args.resume))
     if run.latest_checkpoint() is None:
         raise ConfigError("run has no checkpoint to resume from", str(args.resume))
+    _refuse_if_alive(run)
     if args.overrides:
         _extend_config(run, args.overrides)
     run.config()  # validates the stored config as a user error, not a traceback
@@ -204,6 +205,28 @@ def _resume(args: argparse.Namespace) -> int:
     return run_job(run, lambda r: train_and_evaluate(
         r, resume=True, eval_tasks=args.eval_on, trials=args.trials, evaluate=not args.no_eval,
         device=args.device))
+
+
+def _refuse_if_alive(run: RunFolder) -> None:
+    """Two processes training one run folder would corrupt it: refuse while the recorded
+    process of a queued/running run is still alive (a killed run's stale pid is fine)."""
+    import os
+
+    try:
+        status = run.status()
+    except (OSError, ValueError):
+        return
+    pid = status.get("pid")
+    if status.get("state") not in ("queued", "running") or not pid or pid == os.getpid():
+        return
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return
+    except PermissionError:
+        pass
+    raise ConfigError(f"run is still {status['state']} (pid {pid}); stop it first "
+                      f"(kill -TERM {pid}) and resume when it is interrupted", str(run.path))
 
 
 RESUME_OVERRIDABLE = ("train.max_iterations", "train.save_interval", "eval.")

@@ -189,3 +189,22 @@ def test_sweep_on_a_local_ray(tmp_path: Path) -> None:
     assert sorted(r.status()["cell"] for r in runs) == ["rayed/follow/cml/s0",
                                                         "rayed/follow/mlp/s0"]
     assert all(r.status()["state"] == "finished" and r.eval_result() for r in runs)
+
+
+def test_resume_refuses_a_run_whose_process_is_alive(tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main([FOLLOW, "--model", "mlp", "--out", str(tmp_path), "--no-eval",
+                     "train.max_iterations=1", *TINY]) == 0
+    run = _only_run(tmp_path)
+    sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    try:
+        run.set_state("running")  # records this test's pid; point it at the live sleeper
+        status = json.loads(run.status_path.read_text())
+        status["pid"] = sleeper.pid
+        run.status_path.write_text(json.dumps(status))
+        assert cli.main(["--resume", str(run.path)]) == 2
+        assert f"run is still running (pid {sleeper.pid})" in capsys.readouterr().err
+    finally:
+        sleeper.kill()
+        sleeper.wait()
+    assert cli.main(["--resume", str(run.path), "--no-eval"]) == 0, "a dead pid is stale"
