@@ -207,26 +207,33 @@ def _resume(args: argparse.Namespace) -> int:
         device=args.device))
 
 
-def _refuse_if_alive(run: RunFolder) -> None:
-    """Two processes training one run folder would corrupt it: refuse while the recorded
-    process of a queued/running run is still alive (a killed run's stale pid is fine)."""
+def _alive_pid(run: RunFolder) -> int | None:
+    """The pid of a queued/running run's process if it is still alive (else None: a killed
+    run leaves a stale pid behind)."""
     import os
 
     try:
         status = run.status()
     except (OSError, ValueError):
-        return
+        return None
     pid = status.get("pid")
     if status.get("state") not in ("queued", "running") or not pid or pid == os.getpid():
-        return
+        return None
     try:
         os.kill(int(pid), 0)
     except ProcessLookupError:
-        return
+        return None
     except PermissionError:
         pass
-    raise ConfigError(f"run is still {status['state']} (pid {pid}); stop it first "
-                      f"(kill -TERM {pid}) and resume when it is interrupted", str(run.path))
+    return int(pid)
+
+
+def _refuse_if_alive(run: RunFolder) -> None:
+    """Two processes training one run folder would corrupt it."""
+    pid = _alive_pid(run)
+    if pid is not None:
+        raise ConfigError(f"run is still {run.status()['state']} (pid {pid}); stop it first "
+                          f"(kill -TERM {pid}) and resume when it is interrupted", str(run.path))
 
 
 RESUME_OVERRIDABLE = ("train.max_iterations", "train.save_interval", "eval.")
@@ -259,7 +266,11 @@ def _evaluate(args: argparse.Namespace) -> int:
         raise ConfigError("task file not found (--task)", str(args.eval_task))
     from detach.train.session import evaluate_run
 
-    path = evaluate_run(run, args.eval_task, checkpoint, args.trials, device=args.device)
+    live = _alive_pid(run) is not None
+    if live:
+        print("the run is still training: its log.mcap is left alone (no episode recorded)")
+    path = evaluate_run(run, args.eval_task, checkpoint, args.trials, device=args.device,
+                        record=not live)
     print(f"evaluation written to {path}")
     return 0
 

@@ -149,8 +149,11 @@ def eval_config(cfg: RunConfig, task_path: Path | None) -> RunConfig:
 
 
 def evaluate_run(run: RunFolder, task_path: Path | None, checkpoint: Path | None,
-                 trials: int | None, device: str | None = None) -> Path:
-    """Evaluate the policy; writes eval.json (own task) or eval_<task>.json (another task)."""
+                 trials: int | None, device: str | None = None, record: bool = True) -> Path:
+    """Evaluate the policy; writes eval.json (own task) or eval_<task>.json (another task).
+
+    On the run's own task (and with `record`) the scene and env 0's first episode go to
+    log.mcap; never pass record=True while another process still writes that log."""
     train_cfg = run.config()
     cfg = eval_config(train_cfg, task_path)
     device = device or cfg.device
@@ -164,7 +167,7 @@ def evaluate_run(run: RunFolder, task_path: Path | None, checkpoint: Path | None
     actor.load_state_dict(state["actor_state_dict"])
     actor.to(device).eval()
     own = cfg.task_name == train_cfg.task_name
-    log = RunLogWriter(run.log_path, append=True) if own else None
+    log = RunLogWriter(run.log_path, append=True) if own and record else None
     try:
         result = run_evaluation(env, lambda obs: actor(obs), trials, cfg, log=log,
                                 episode_id=max(int(state.get("iter", 0)), 0))
