@@ -118,7 +118,8 @@ class SceneInfo:
         return self.objects[index]
 
 
-def _yaw_quat(a: float) -> np.ndarray:
+def yaw_quat(a: float) -> np.ndarray:
+    """wxyz quaternion of a rotation by `a` radians about +Z (an object's `z_rot_angle`)."""
     return np.array([math.cos(a / 2), 0.0, 0.0, math.sin(a / 2)])
 
 
@@ -180,7 +181,7 @@ def compile_scene(task: TaskCfg, sim: SimCfg | None = None, character: str = "hu
         vis_name, hull_names = meshes[folder]
         bbox = np.asarray(_asset_attr(asset, "bbox"), dtype=np.float64)
         body = spec.worldbody.add_body(name=f"obj{i}_{obj.name}", pos=list(obj.pos3d),
-                                       quat=list(_yaw_quat(obj.z_rot_angle)))
+                                       quat=list(yaw_quat(obj.z_rot_angle)))
         if not obj.static:
             body.add_freejoint(name=f"obj{i}_{obj.name}_free")
             body.explicitinertial = True

@@ -7,7 +7,6 @@ only those count. Env 0's first episode is recorded frame by frame to `/episode/
 
 from __future__ import annotations
 
-import math
 from typing import Any, Callable
 
 import numpy as np
@@ -20,10 +19,6 @@ from detach.eval.report import TrialOutcome, summarize
 from detach.runs.mcap_log import RunLogWriter
 
 Policy = Callable[[TensorDict], torch.Tensor]
-
-
-def _quat_of_yaw(yaw: float) -> list[float]:
-    return [math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]
 
 
 def body_geoms(model, body_ids: np.ndarray, body_names: tuple[str, ...]) -> list[dict[str, Any]]:
@@ -49,13 +44,14 @@ def record_scene(env, cfg: RunConfig) -> dict[str, Any]:
     """The /scene message of a run (see detach.runs.mcap_log)."""
     from detach.envs.humanoid import BODY_NAMES
     from scene_builder.assets import default_assets_root
+    from scene_builder.scene import yaw_quat
 
     root = default_assets_root().resolve()
     objects = []
     for obj, spec in zip(env.scene.objects, cfg.task.scene):
         objects.append({"name": obj.name, "category": obj.category,
                         "mesh": str(root / spec.category / spec.model_id / "mesh.obj"),
-                        "pos": [float(v) for v in obj.pos], "quat": _quat_of_yaw(obj.z_rot),
+                        "pos": [float(v) for v in obj.pos], "quat": [float(v) for v in yaw_quat(obj.z_rot)],
                         "bbox": [float(v) for v in obj.bbox], "static": bool(obj.static)})
     targets = []
     for i, sub in enumerate(env.plan):

@@ -132,7 +132,6 @@ def train_and_evaluate(run: RunFolder, resume: bool, eval_tasks: Sequence[Path] 
             log.log_scene(record_scene(env, cfg))
         runner.on_iteration = lambda it, _m: run.set_state("running", iteration=it + 1)
         runner.learn(cfg.train.max_iterations)
-        del env
     finally:
         log.close()
     if evaluate:
