@@ -265,7 +265,8 @@ class TrainCfg:
     per_objective_advantage_norm: bool = False
     amp: AmpCfg = AmpCfg()
     stages: StagesCfg = StagesCfg()
-    torch_threads: int = 1
+    torch_threads: int = 0
+    """torch CPU threads; 0 keeps torch's default (one per core, or OMP_NUM_THREADS)."""
 
 
 @dataclass(frozen=True)

@@ -167,3 +167,26 @@ def test_preview_cli_prints_the_oracle_timeline(capsys):
     assert main([str(TASKS / "lh1.yaml"), "--oracle"]) == 0
     out = capsys.readouterr().out
     assert "subtask 2 (climb) complete -> 3 (sit)" in out and "LH success: True" in out
+
+
+def test_follow_rewards_ask_to_keep_up_and_stop_at_the_end():
+    from detach.envs.rewards import RewardContext, traj_position, traj_precision, traj_velocity
+
+    def ctx(root_xy, root_v, ref_xy, ref_v):
+        z = torch.zeros(len(root_xy))
+        t = lambda rows: torch.tensor(rows, dtype=torch.float32)  # noqa: E731
+        pos = torch.cat((t(root_xy), z[:, None] + 0.9), dim=-1)
+        lin = torch.cat((t(root_v), z[:, None]), dim=-1)
+        return RewardContext(skill=z.long(), root_pos=pos, root_lin=lin, target=pos, obj_pos=pos,
+                             obj_rest_z=z, ref_xy=t(ref_xy), ref_vel=t(ref_v), dist=z,
+                             joint_power=z, dyn_speed=torch.zeros(len(z), 0))
+
+    # on the reference at its velocity; 0.5 m behind at its velocity; 0.5 m behind catching up
+    c = ctx([[0, 0], [-0.5, 0], [-0.5, 0]], [[1.45, 0], [1.45, 0], [2.0, 0]],
+            [[0, 0]] * 3, [[1.45, 0]] * 3)
+    vel, prec, pos = traj_velocity(c), traj_precision(c), traj_position(c)
+    assert vel[0] == pytest.approx(1.0) and vel[2] == pytest.approx(1.0) and vel[1] < 0.9
+    assert prec[0] == pytest.approx(1.0) and prec[1] < 0.01 and pos[1] > 0.6
+    # the reference has stopped at the end point: standing on it pays, overshooting does not
+    c = ctx([[0, 0], [0.3, 0]], [[0, 0], [1.0, 0]], [[0, 0]] * 2, [[0, 0]] * 2)
+    assert traj_velocity(c)[0] == pytest.approx(1.0) and traj_velocity(c)[1] < 0.3

@@ -46,8 +46,8 @@ def test_body_positions_are_mujoco_fk(clips):
     np.testing.assert_allclose(fk.body_pos, c.body_pos, atol=1e-9)
 
 
-@pytest.mark.parametrize("name", ["idle_breathe", "idle_shift", "walk_1p42", "walk_1p48", "turn_left_90",
-                                  "turn_right_90", "walk_turn_left", "walk_turn_right", "step_up_0p30",
+@pytest.mark.parametrize("name", ["idle_breathe", "idle_shift", "walk_1p42", "walk_1p48", "walk_1p90",
+                                  "turn_left_90", "turn_right_90", "walk_turn_left", "walk_turn_right", "step_up_0p30",
                                   "step_up_0p45", "sit_down", "sit_stand_up", "carry_walk", "carry_stand"])
 def test_plausible(clips, name):
     c = clips[name]
@@ -63,10 +63,10 @@ def test_plausible(clips, name):
 
 
 def test_walking_speed_and_stance(clips):
-    for name in ("walk_1p42", "walk_1p48"):
+    for name, lo, hi in (("walk_1p42", 1.4, 1.5), ("walk_1p48", 1.4, 1.5), ("walk_1p90", 1.85, 1.95)):
         c = clips[name]
         speed = np.linalg.norm(c.root_pos[-1, :2] - c.root_pos[0, :2]) / c.duration
-        assert 1.4 <= speed <= 1.5, (name, speed)
+        assert lo <= speed <= hi, (name, speed)
         assert abs(c.root_pos[-1, 1]) < 0.01  # straight ahead (+X)
         clear = foot_clearance(c)
         assert (clear.min(axis=1) < 0.02).all()  # the stance foot is on the ground in every frame

@@ -147,10 +147,10 @@ def test_cli_errors(tmp_path, capsys):
 
 def test_cli_list_and_builtin(tmp_path, capsys):
     assert main(["builtin", "--out", str(tmp_path)]) == 0
-    assert len(list(tmp_path.glob("*.npz"))) == 14
+    assert len(list(tmp_path.glob("*.npz"))) == 15
     capsys.readouterr()
     assert main(["list", str(tmp_path)]) == 0
     out = capsys.readouterr().out
-    assert "walk_1p42" in out and "14 clip(s)" in out
+    assert "walk_1p42" in out and "15 clip(s)" in out
     assert main(["list"]) == 0
-    assert "built-in synthetic clips: 14 clip(s)" in capsys.readouterr().out
+    assert "built-in synthetic clips: 15 clip(s)" in capsys.readouterr().out

@@ -94,9 +94,6 @@ class LHEnv(VecEnv):
         self._alloc()
         if verbose:
             print(self.describe())
-            if self.device.type == "cpu" and torch.get_num_threads() > 1:
-                print(f"note: torch uses {torch.get_num_threads()} threads next to MuJoCo's; "
-                      "torch.set_num_threads(1) makes CPU env steps several times faster")
         self._reset_envs(torch.arange(self.num_envs, device=self.device))
         self.obs = self._observe(self._read(), torch.arange(self.num_envs, device=self.device))
 
@@ -163,8 +160,9 @@ class LHEnv(VecEnv):
         st = self._read()
         tg = self._targets(st)
         ref = self._traj_ref(0.0)
+        ref_vel = (self._traj_ref(self.dt) - ref) / self.dt
         dist = S.subtask_distance(tg["skill"], st.root_pos, tg["obj_pos"], tg["target"])
-        rew, parts = self.rewards.compute(self._reward_ctx(st, tg, ref, dist))
+        rew, parts = self.rewards.compute(self._reward_ctx(st, tg, ref, ref_vel, dist))
         is_traj = tg["skill"] == S.TRAJ
         fell = st.root_pos[:, 2] < self.cfg.env.termination_height
         traj_fail = is_traj & ((st.root_pos[:, :2] - ref).norm(dim=-1) > self.cfg.env.traj_fail_distance)
@@ -263,11 +261,13 @@ class LHEnv(VecEnv):
             return sample_at(self.traj_verts, self.traj_dt, t[:, None] + ahead[None])
         return sample_at(self.traj_verts, self.traj_dt, t + ahead)
 
-    def _reward_ctx(self, st: SimState, tg: dict, ref: torch.Tensor, dist: torch.Tensor) -> RewardContext:
+    def _reward_ctx(self, st: SimState, tg: dict, ref: torch.Tensor, ref_vel: torch.Tensor,
+                    dist: torch.Tensor) -> RewardContext:
         dyn = self.ix.dyn
         rest = self.resets.rest_z_of(tg["obj"])
         return RewardContext(skill=tg["skill"], root_pos=st.root_pos, root_lin=st.body_lin[:, 0],
-                             target=tg["target"], obj_pos=tg["obj_pos"], obj_rest_z=rest, ref_xy=ref,
+                             target=tg["target"], obj_pos=tg["obj_pos"], obj_rest_z=rest,
+                             ref_xy=ref, ref_vel=ref_vel,
                              # the puppet's hinges are cosmetic (balance is not its problem): the
                              # power penalty, a humanoid regulariser, would only teach it to freeze
                              dist=dist, joint_power=st.joint_power * (0.0 if self.puppet else 1.0),

@@ -21,6 +21,11 @@ TAR_SPEED = 1.5
 """Desired approach speed (m/s) of the velocity terms."""
 NEAR = 0.5
 """Within this XY distance (m) of its goal an approach term pays its maximum."""
+TRACK_GAIN = 2.0
+"""Follow: velocity (m/s) asked per metre of error toward the reference (1/s), on top of the
+reference's own velocity; a 0.5 s time constant."""
+TRACK_MAX_SPEED = 2.0
+"""Follow: the asked velocity is capped at this speed (m/s): catching up at a brisk walk."""
 
 
 @dataclass
@@ -38,6 +43,8 @@ class RewardContext:
     """Resting height of the box's centre (carry)."""
     ref_xy: torch.Tensor
     """Trajectory reference point now (traj)."""
+    ref_vel: torch.Tensor
+    """Trajectory reference velocity now, XY m/s (traj; 0 once the path has ended)."""
     dist: torch.Tensor
     """Anchor-to-target distance of `detach.envs.success.subtask_distance`."""
     joint_power: torch.Tensor
@@ -65,10 +72,22 @@ def traj_position(ctx: RewardContext) -> torch.Tensor:
     return torch.exp(-2.0 * d2)
 
 
+def traj_precision(ctx: RewardContext) -> torch.Tensor:
+    """A narrow kernel exp(-20 d^2) (0.17 at the 0.3 m success threshold): exp(-2 d^2) alone
+    is nearly flat there and leaves the character trailing its reference by ~0.6 m."""
+    d2 = ((ctx.ref_xy - ctx.root_pos[:, :2]) ** 2).sum(-1)
+    return torch.exp(-20.0 * d2)
+
+
 def traj_velocity(ctx: RewardContext) -> torch.Tensor:
-    """Speed toward the reference point: a dense signal when the character lags behind,
-    where exp(-2 d^2) is flat (1 within `NEAR`)."""
-    return _approach_velocity(ctx.root_lin, ctx.root_pos, ctx.ref_xy)
+    """Velocity tracking: the asked velocity is the reference's own plus `TRACK_GAIN` times the
+    error toward it (capped at `TRACK_MAX_SPEED`); dense at any distance, and it asks the
+    character to stop on the end point once the reference has stopped there."""
+    want = ctx.ref_vel + TRACK_GAIN * (ctx.ref_xy - ctx.root_pos[:, :2])
+    speed = want.norm(dim=-1, keepdim=True)
+    want = want * (TRACK_MAX_SPEED / speed.clamp(min=TRACK_MAX_SPEED))
+    err2 = ((ctx.root_lin[:, :2] - want) ** 2).sum(-1)
+    return torch.exp(-0.5 * err2)
 
 
 def carry_walk_to_box(ctx: RewardContext) -> torch.Tensor:
@@ -106,8 +125,9 @@ def sit_seat(ctx: RewardContext) -> torch.Tensor:
 
 
 TERMS: dict[str, tuple[Callable[[RewardContext], torch.Tensor], float]] = {
-    "traj/position": (traj_position, 0.6),
-    "traj/velocity": (traj_velocity, 0.4),
+    "traj/position": (traj_position, 0.4),
+    "traj/precision": (traj_precision, 0.3),
+    "traj/velocity": (traj_velocity, 0.3),
     "carry/walk_to_box": (carry_walk_to_box, 0.2),
     "carry/box_height": (carry_box_height, 0.2),
     "carry/box_to_target": (carry_box_to_target, 0.6),

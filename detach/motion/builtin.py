@@ -14,6 +14,7 @@ on a laptop; they are not human motion capture. Import real clips with `detach-m
 | --- | --- | --- |
 | idle_breathe, idle_shift | idle | standing: breathing, ankle sway, head turns / slow weight shift |
 | walk_1p42, walk_1p48 | walk | straight walking at 1.42 and 1.48 m/s (task range 1.4-1.5 m/s) |
+| walk_1p90 | walk | brisk walking at 1.9 m/s, longer strides (catching up with a trajectory) |
 | turn_left_90, turn_right_90 | turn | stepping in place while turning 90 degrees |
 | walk_turn_left, walk_turn_right | turn | walking 1.2 m/s on a curve (0.5 rad/s) |
 | step_up_0p30, step_up_0p45 | step_up | stepping onto a 0.30 / 0.45 m high step (prop in meta) |
@@ -312,6 +313,8 @@ _RECIPES = (
     lambda: _idle("idle_shift", shift=0.05, duration=8.0),
     lambda: _walk("walk_1p42", "walk", 1.42, cycles=4),
     lambda: _walk("walk_1p48", "walk", 1.48, cycles=4),
+    lambda: _walk("walk_1p90", "walk", 1.9, cycles=5, g=_Gait(hip_front=0.66, hip_back=0.52, pitch=0.07),
+                  notes="1.90 m/s brisk walk"),
     lambda: _turn_in_place("turn_left_90", np.pi / 2),
     lambda: _turn_in_place("turn_right_90", -np.pi / 2),
     lambda: _walk("walk_turn_left", "turn", 1.2, cycles=4, yaw_rate=0.5, notes="1.2 m/s, +0.5 rad/s"),

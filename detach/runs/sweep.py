@@ -108,16 +108,24 @@ def cell_command(cell: Cell, sweep: SweepCfg, sweep_path: Path, out: Path,
             *sweep.overrides]
 
 
-def _run_command(cmd: list[str], cwd: str) -> int:
-    return subprocess.run(cmd, cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+def _run_command(cmd: list[str], cwd: str, env: dict[str, str] | None = None) -> int:
+    return subprocess.run(cmd, cwd=cwd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                           text=True).returncode
+
+
+def _cell_env(jobs: int) -> dict[str, str]:
+    """Parallel cells share the cores: each torch gets cores // jobs threads (torch reads
+    OMP_NUM_THREADS for its default) unless the user has set it."""
+    env = dict(os.environ)
+    env.setdefault("OMP_NUM_THREADS", str(max(1, (os.cpu_count() or 1) // max(jobs, 1))))
+    return env
 
 
 def _launch_local(pending: list[tuple[Cell, list[str]]], jobs: int) -> list[int]:
     def launch(item: tuple[Cell, list[str]]) -> int:
         cell, cmd = item
         print(f"[{cell.key}] start", flush=True)
-        code = _run_command(cmd, os.getcwd())
+        code = _run_command(cmd, os.getcwd(), _cell_env(jobs))
         print(f"[{cell.key}] {'done' if code == 0 else f'FAILED (exit {code})'}", flush=True)
         return code
 

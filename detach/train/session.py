@@ -78,7 +78,8 @@ def _stage_hook(runner: DetachRunner):
 def build_runner(cfg: RunConfig, run: RunFolder | None, device: str,
                  log: RunLogWriter | None = None, progress: bool = True
                  ) -> tuple[LHEnv, DetachRunner]:
-    torch.set_num_threads(max(cfg.train.torch_threads, 1))
+    if cfg.train.torch_threads > 0:
+        torch.set_num_threads(cfg.train.torch_threads)
     seed_everything(cfg.seed)
     env = make_env(cfg, device=device)
     print(env.describe(), flush=True)
