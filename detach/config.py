@@ -18,7 +18,8 @@ from typing import Any, Sequence
 import yaml
 
 from detach.config_schema import (
-    EnvCfg, EvalCfg, ModelCfg, RewardsCfg, RunConfig, SimCfg, TaskCfg, TrainCfg,
+    CHARACTER_ACTION_STD, EnvCfg, EvalCfg, ModelCfg, RewardsCfg, RunConfig, SimCfg, TaskCfg,
+    TrainCfg,
 )
 from detach.config_validate import Builder, describe, suggest, to_plain
 from detach.yaml_source import ConfigError, KeyPath, Provenance, format_path, load_yaml, parse_scalar
@@ -175,9 +176,23 @@ def _build_run(data: dict[str, Any], prov: Provenance, file: str,
     check_task(task, builder)
     sections = {name: builder.build(cls, data.get(name, {}), (name,))
                 for name, cls in {**TASK_SECTIONS, **MODEL_SECTIONS}.items()}
+    check_model(sections["model"], builder)
+    if sections["model"].init_noise_std is None:
+        std = CHARACTER_ACTION_STD[sections["env"].character]
+        sections["model"] = dataclasses.replace(sections["model"], init_noise_std=std)
     hints = typing.get_type_hints(RunConfig)
     runs = {k: builder.build(hints[k], data.get(k, run_keys[k]), (k,)) for k in RUN_KEYS}
     return RunConfig(task=task, **runs, **sections)
+
+
+def check_model(model: ModelCfg, builder: Builder) -> None:
+    """Model fields that only some kinds read."""
+    if model.history_frames < 0:
+        raise builder.error(("model", "history_frames"), f"expected >= 0 (0 = every frame), "
+                                                         f"found {model.history_frames}")
+    if model.history_frames and model.kind != "mlp":
+        raise builder.error(("model", "history_frames"), f"only the mlp kind reads it; "
+                                                         f"'{model.kind}' uses every frame")
 
 
 def check_task(task: TaskCfg, builder: Builder) -> None:

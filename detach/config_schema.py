@@ -102,6 +102,13 @@ class TrajectoryGenCfg:
     """Vertices of one generated trajectory (covers a whole episode)."""
 
 
+CHARACTER_ACTION_STD: dict[str, float] = {"humanoid": 0.1, "puppet": 1.0}
+"""Initial policy action std per character (`model.init_noise_std: null` picks it). Measured
+(benchmarks/RESULTS.md): std 1 makes the humanoid's PD targets jump by its whole joint range,
+the power penalty then dominates and episodes end in ~37 steps; the puppet, whose task rides on
+three root-velocity actions, learns fastest with 1 (0.5 and 0.2 were slower)."""
+
+
 @dataclass(frozen=True)
 class EnvCfg:
     character: Literal["humanoid", "puppet"] = "humanoid"
@@ -214,7 +221,11 @@ class ModelCfg:
     gru_hidden: int = 256
     critic_objectives: tuple[str, ...] = ("task",)
     """Value heads of a multi-head critic (CML): one per reward objective."""
-    init_noise_std: float = 1.0
+    init_noise_std: float | None = None
+    """Initial action std of the Gaussian policy; None = the character's
+    (`CHARACTER_ACTION_STD`), filled in when a run config is resolved."""
+    history_frames: int = 0
+    """MLP only: the newest frames of each history group the network reads (0 = all T)."""
     obs_normalization: bool = True
     """Running mean/std normalisation of the concatenated observation groups (rsl-rl's
     EmpiricalNormalization) before the network; reconstruction targets are normalised too."""

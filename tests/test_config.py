@@ -181,6 +181,10 @@ BROKEN: list[tuple[str, dict[str, str], list[str], str]] = [
      "sim.num_envs: expected an integer, found list [1, 2]"),
     ("override_bad_index", {"t.yaml": GOOD_TASK}, ["scene[5].pos3d=[0, 0, 0]"],
      "no item 5 (the list has 2 items)"),
+    ("history_frames_negative", {"t.yaml": GOOD_TASK}, ["model.history_frames=-1"],
+     "model.history_frames: expected >= 0 (0 = every frame), found -1"),
+    ("history_frames_not_mlp", {"t.yaml": GOOD_TASK}, ["model.kind=detach", "model.history_frames=1"],
+     "model.history_frames: only the mlp kind reads it; 'detach' uses every frame"),
     ("override_no_equals", {"t.yaml": GOOD_TASK}, ["sim.num_envs"],
      "bad override 'sim.num_envs': expected key.path=value"),
     ("missing_task_file", {}, [], "t.yaml: task file not found"),
@@ -207,6 +211,15 @@ def test_unknown_model_suggests_closest(capsys: pytest.CaptureFixture[str]) -> N
     code = cli.main([str(ROOT / "configs/tasks/lh1.yaml"), "--model", "tokenhs", "--dry-run"])
     assert code == 2
     assert "unknown model 'tokenhs' (did you mean 'tokenhsi'?)" in capsys.readouterr().err
+
+
+def test_action_std_defaults_to_the_characters_and_an_override_wins() -> None:
+    follow = ROOT / "configs/tasks/follow.yaml"
+    assert resolve(follow, "detach").model.init_noise_std == 0.1
+    assert resolve(follow, "mlp", ["env.character=puppet"]).model.init_noise_std == 1.0
+    assert resolve(follow, "mlp", ["env.character=puppet", "model.init_noise_std=0.3"]
+                   ).model.init_noise_std == 0.3
+    assert "init_noise_std: 0.1" in dump(resolve(follow, "tokenhsi"))  # config.yaml has the number
 
 
 def test_model_yaml_by_path_and_unknown_section(tmp_path: Path) -> None:

@@ -319,6 +319,23 @@ def test_unequal_history_lengths() -> None:
             assert all(torch.isfinite(v) for v in actor.aux_losses(obs).values())
 
 
+def test_mlp_history_frames_reads_only_the_newest_frames() -> None:
+    cfg = dataclasses.replace(KINDS["mlp"], history_frames=1, obs_normalization=False)
+    obs = random_obs(4)
+    actor, _ = build_actor_critic(cfg, SPEC, obs)
+    first = next(m for m in actor.mlp.modules() if isinstance(m, torch.nn.Linear))
+    assert first.in_features == SPEC.self_dim + SPEC.env_dim + SPEC.num_skills
+    older = obs.clone()  # change every frame but the newest: the action must not move
+    older["self"][:, : -SPEC.self_dim] += 5.0
+    older["env"][:, : -SPEC.env_dim] += 5.0
+    assert torch.equal(actor(obs), actor(older))
+    newest = obs.clone()
+    newest["self"][:, -SPEC.self_dim:] += 5.0
+    assert not torch.equal(actor(obs), actor(newest))
+    with pytest.raises(NotImplementedError, match="history_frames"):
+        actor.as_jit()
+
+
 def test_wrong_group_width_is_a_one_line_error() -> None:
     obs = random_obs(4)
     obs["env"] = torch.randn(4, 10)

@@ -264,7 +264,16 @@ class MLPBaselineModel(StructuredModel):
     trunk_class = FlatTrunk
 
     def as_jit(self) -> nn.Module:
+        self._check_exportable()
         return MLPModel.as_jit(self)
 
     def as_onnx(self, verbose: bool = False) -> nn.Module:
+        self._check_exportable()
         return MLPModel.as_onnx(self, verbose)
+
+    def _check_exportable(self) -> None:
+        """rsl-rl's exporters feed the whole normalised input to the MLP; a trunk that drops
+        history frames would not match the first layer."""
+        if self.trunk.slices_history:
+            raise NotImplementedError("export with model.history_frames > 0 is not supported; "
+                                      "use the eager model")
