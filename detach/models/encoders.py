@@ -44,7 +44,10 @@ class EnvEncoder(nn.Module):
         """S_env = Concat_k[Conv1D_k(embed(x))]: [N, T, d_env] -> [N, T, out_dim]."""
         e = self.embed(x).transpose(1, 2)  # [N, C, T]
         s = torch.cat([self.act(conv(e)) for conv in self.convs], dim=1)
-        return s.transpose(1, 2)
+        # contiguous: with the transposed view, autograd ran the attention's QKV Linear as a
+        # batched matmul with the weight broadcast per sample; copying makes a DETACH PPO
+        # iteration 1.34x faster on CPU (benchmarks/bench_ppo_iteration.py)
+        return s.transpose(1, 2).contiguous()
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         s = self.conv_features(x)
