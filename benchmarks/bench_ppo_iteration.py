@@ -16,7 +16,7 @@ import argparse
 import os
 import statistics
 import time
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
 import torch
@@ -26,6 +26,11 @@ from detach.models.encoders import EnvEncoder
 from detach.train.session import build_runner
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def variant_context(name: str):
+    """The code state a variant is built and timed in."""
+    return transposed_env_features() if name == "detach-transposed" else nullcontext()
 
 
 @contextmanager
@@ -85,18 +90,12 @@ def main() -> None:
     args = ap.parse_args()
     variants = {}
     for name in args.models:
-        if name == "detach-transposed":
-            with transposed_env_features():
-                variants[name] = build("detach")
-        else:
-            variants[name] = build(name)
+        with variant_context(name):
+            variants[name] = build("detach" if name == "detach-transposed" else name)
     times: dict[str, list[dict[str, float]]] = {name: [] for name in variants}
     for _ in range(args.reps):
         for name, (env, runner) in variants.items():
-            if name == "detach-transposed":
-                with transposed_env_features():
-                    times[name].append(measure(env, runner))
-            else:
+            with variant_context(name):
                 times[name].append(measure(env, runner))
     parts = sorted({k for reps in times.values() for r in reps for k in r},
                    key=["rollout", "actor fwd+bwd", "critic fwd+bwd", "aux fwd+bwd", "update"].index)

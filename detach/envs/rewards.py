@@ -67,15 +67,20 @@ def _approach(ctx: RewardContext, goal: torch.Tensor) -> torch.Tensor:
     return torch.where(d < NEAR, torch.ones_like(r), r)
 
 
+def _ref_error(ctx: RewardContext) -> torch.Tensor:
+    """[N, 2] XY vector from the pelvis to the trajectory's reference point."""
+    return ctx.ref_xy - ctx.root_pos[:, :2]
+
+
 def traj_position(ctx: RewardContext) -> torch.Tensor:
-    d2 = ((ctx.ref_xy - ctx.root_pos[:, :2]) ** 2).sum(-1)
+    d2 = _ref_error(ctx).pow(2).sum(-1)
     return torch.exp(-2.0 * d2)
 
 
 def traj_precision(ctx: RewardContext) -> torch.Tensor:
     """A narrow kernel exp(-20 d^2) (0.17 at the 0.3 m success threshold): exp(-2 d^2) alone
     is nearly flat there and leaves the character trailing its reference by ~0.6 m."""
-    d2 = ((ctx.ref_xy - ctx.root_pos[:, :2]) ** 2).sum(-1)
+    d2 = _ref_error(ctx).pow(2).sum(-1)
     return torch.exp(-20.0 * d2)
 
 
@@ -83,7 +88,7 @@ def traj_velocity(ctx: RewardContext) -> torch.Tensor:
     """Velocity tracking: the asked velocity is the reference's own plus `TRACK_GAIN` times the
     error toward it (capped at `TRACK_MAX_SPEED`); dense at any distance, and it asks the
     character to stop on the end point once the reference has stopped there."""
-    want = ctx.ref_vel + TRACK_GAIN * (ctx.ref_xy - ctx.root_pos[:, :2])
+    want = ctx.ref_vel + TRACK_GAIN * _ref_error(ctx)
     speed = want.norm(dim=-1, keepdim=True)
     want = want * (TRACK_MAX_SPEED / speed.clamp(min=TRACK_MAX_SPEED))
     err2 = ((ctx.root_lin[:, :2] - want) ** 2).sum(-1)

@@ -30,7 +30,7 @@ class FlatTrunk(nn.Module):
     @property
     def slices_history(self) -> bool:
         """True when the trunk drops frames (its input is then not the plain concatenation)."""
-        return any(self._kept_width(g, w) != w for g, w in zip(self.layout.groups, self.layout.dims))
+        return self.out_dim != sum(self.layout.dims)
 
     def _kept_width(self, group: str, width: int) -> int:
         if group not in HISTORY_GROUPS or self.frames == 0:
