@@ -1,13 +1,15 @@
 """Cost of one PPO iteration on the puppet follow task, split by part, side by side in one run.
 
-    python benchmarks/bench_ppo_iteration.py [--models detach mlp] [--reps 2]
+    python benchmarks/bench_ppo_iteration.py [--models detach detach-separate mlp] [--reps 2]
 
-For each model: a rollout (64 envs x 32 steps, the training defaults), forward+backward of the
-actor and of the critic on one 512-sample mini-batch, the auxiliary losses of both networks
-(DETACH), and the whole `update()` (20 mini-batches + AMP + aux), DETACH in its stage 2
-(fusion). `detach-transposed` is DETACH with Φ_env's conv features left as a transposed view
-(before the `.contiguous()` in `EnvEncoder.conv_features`), to keep that fix measured.
-Variants are timed round-robin (median of `--reps`), threads as in training (torch's default).
+For each variant: a rollout (64 envs x 32 steps, the training defaults), one forward+backward
+of actor and critic together on a 512-sample mini-batch (as PPO's loss does), the auxiliary
+losses (DETACH), and the whole `update()` (20 mini-batches + AMP + aux), DETACH in its stage 2
+(fusion). `detach` is configs/models/detach.yaml (critic on the actor's trunk,
+`model.shared_trunk: true`); `detach-separate` gives the critic its own DETACH trunk (as before
+the shared trunk); `detach-transposed` is `detach-separate` with Φ_env's conv features left as a
+transposed view (before the `.contiguous()` in `EnvEncoder.conv_features`), to keep that fix
+measured. Variants are timed round-robin (median of `--reps`), threads as in training.
 """
 
 from __future__ import annotations
@@ -26,6 +28,15 @@ from detach.models.encoders import EnvEncoder
 from detach.train.session import build_runner
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+VARIANTS: dict[str, tuple[str, list[str]]] = {
+    "detach": ("detach", []),
+    "detach-separate": ("detach", ["model.shared_trunk=false"]),
+    "detach-transposed": ("detach", ["model.shared_trunk=false"]),
+    "mlp": ("mlp", []),
+}
+"""variant -> (model config, overrides)."""
 
 
 def variant_context(name: str):
@@ -49,9 +60,11 @@ def transposed_env_features():
         EnvEncoder.conv_features = original
 
 
-def build(model: str):
+def build(variant: str):
+    model, overrides = VARIANTS[variant]
     cfg = resolve(ROOT / "configs/tasks/follow.yaml", model,
-                  ["env.character=puppet", "train.stages.pretrain=1", "train.stages.fusion=1000"])
+                  ["env.character=puppet", "train.stages.pretrain=1", "train.stages.fusion=1000",
+                   *overrides])
     env, runner = build_runner(cfg, None, "cpu", progress=False)
     runner.learn(2)  # DETACH: stage 1, then the first stage-2 iteration (warm-up for all)
     return env, runner
@@ -68,10 +81,9 @@ def measure(env, runner) -> dict[str, float]:
         alg.compute_returns(obs)
     out = {"rollout": time.perf_counter() - start}
     batch = alg.storage.observations.flatten(0, 1)[:512]
-    for name, model in (("actor", alg.actor), ("critic", alg.critic)):
-        start = time.perf_counter()
-        model(batch).float().sum().backward()
-        out[f"{name} fwd+bwd"] = time.perf_counter() - start
+    start = time.perf_counter()
+    (alg.actor(batch).sum() + alg.critic(batch).sum()).backward()
+    out["actor+critic fwd+bwd"] = time.perf_counter() - start
     if alg.aux_loss_fn is not None:
         start = time.perf_counter()
         alg.aux_loss_fn(batch, alg.stage)[0].backward()
@@ -85,20 +97,21 @@ def measure(env, runner) -> dict[str, float]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--models", nargs="+", default=["detach", "detach-transposed", "mlp"])
+    ap.add_argument("--models", nargs="+", choices=list(VARIANTS),
+                    default=["detach", "detach-separate", "mlp"])
     ap.add_argument("--reps", type=int, default=2)
     args = ap.parse_args()
     variants = {}
     for name in args.models:
         with variant_context(name):
-            variants[name] = build("detach" if name == "detach-transposed" else name)
+            variants[name] = build(name)
     times: dict[str, list[dict[str, float]]] = {name: [] for name in variants}
     for _ in range(args.reps):
         for name, (env, runner) in variants.items():
             with variant_context(name):
                 times[name].append(measure(env, runner))
     parts = sorted({k for reps in times.values() for r in reps for k in r},
-                   key=["rollout", "actor fwd+bwd", "critic fwd+bwd", "aux fwd+bwd", "update"].index)
+                   key=["rollout", "actor+critic fwd+bwd", "aux fwd+bwd", "update"].index)
     print(f"torch {torch.__version__}, {os.cpu_count()} cores, threads={torch.get_num_threads()}, "
           f"puppet follow, 64 envs x 32 steps, mini-batch 512, median of {args.reps}")
     print("| variant | " + " | ".join(f"{p} (s)" for p in parts) + " | rollout + update (s) |")

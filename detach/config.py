@@ -193,6 +193,9 @@ def check_model(model: ModelCfg, builder: Builder) -> None:
     if model.history_frames and model.kind != "mlp":
         raise builder.error(("model", "history_frames"), f"only the mlp kind reads it; "
                                                          f"'{model.kind}' uses every frame")
+    if model.shared_trunk and model.kind == "mlp":
+        raise builder.error(("model", "shared_trunk"), "the mlp kind has no trunk to share; "
+                                                       "use detach, tokenhsi or cml")
 
 
 def check_task(task: TaskCfg, builder: Builder) -> None:

@@ -226,6 +226,9 @@ class ModelCfg:
     (`CHARACTER_ACTION_STD`), filled in when a run config is resolved."""
     history_frames: int = 0
     """MLP only: the newest frames of each history group the network reads (0 = all T)."""
+    shared_trunk: bool = False
+    """The critic reads the actor's trunk: its value head sees [h; privileged groups] (the
+    paper's V(s) = ValueHead(h_transformer)), so one trunk is trained and run per update."""
     obs_normalization: bool = True
     """Running mean/std normalisation of the concatenated observation groups (rsl-rl's
     EmpiricalNormalization) before the network; reconstruction targets are normalised too."""

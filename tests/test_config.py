@@ -185,6 +185,8 @@ BROKEN: list[tuple[str, dict[str, str], list[str], str]] = [
      "model.history_frames: expected >= 0 (0 = every frame), found -1"),
     ("history_frames_not_mlp", {"t.yaml": GOOD_TASK}, ["model.kind=detach", "model.history_frames=1"],
      "model.history_frames: only the mlp kind reads it; 'detach' uses every frame"),
+    ("shared_trunk_mlp", {"t.yaml": GOOD_TASK}, ["model.kind=mlp", "model.shared_trunk=true"],
+     "model.shared_trunk: the mlp kind has no trunk to share"),
     ("override_no_equals", {"t.yaml": GOOD_TASK}, ["sim.num_envs"],
      "bad override 'sim.num_envs': expected key.path=value"),
     ("missing_task_file", {}, [], "t.yaml: task file not found"),

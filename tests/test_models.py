@@ -24,6 +24,7 @@ SPEC = EXAMPLE_SPEC
 CML_OBJECTIVES = ("task", "disc_upper", "disc_lower")
 KINDS: dict[str, ModelCfg] = {
     "detach": ModelCfg(kind="detach"),
+    "detach_shared": ModelCfg(kind="detach", shared_trunk=True),
     "ablation_a1": ModelCfg(kind="detach", use_env_encoder=False),
     "ablation_a2": ModelCfg(kind="detach", use_self_encoder=False),
     "tokenhsi": ModelCfg(kind="tokenhsi", num_heads=2, ff_dim=512),
@@ -89,7 +90,9 @@ def test_gradients_reach_every_trainable_parameter(name: str) -> None:
     actor, critic, obs = build(name)
     loss = ppo_like_loss(actor, critic, obs)
     if isinstance(actor, DetachModel):
-        loss = loss + sum(actor.aux_losses(obs, reuse_forward=True).values()) + sum(critic.aux_losses(obs).values())
+        loss = loss + sum(actor.aux_losses(obs, reuse_forward=True).values())
+        if critic.owns_trunk:
+            loss = loss + sum(critic.aux_losses(obs).values())
     loss.backward()
     for model in (actor, critic):
         missing = [n for n, p in model.named_parameters() if p.grad is None or not p.grad.abs().sum() > 0]
@@ -192,7 +195,7 @@ def test_fusion_diversity_modes() -> None:
     assert L.fusion_diversity([f, -f, f + 1], "distance").item() > 0
 
 
-@pytest.mark.parametrize("name", ["detach", "tokenhsi", "cml"])
+@pytest.mark.parametrize("name", ["detach", "detach_shared", "tokenhsi", "cml"])
 def test_state_dict_round_trip(name: str) -> None:
     actor, critic, obs = build(name)
     if isinstance(actor, DetachModel):
@@ -209,6 +212,37 @@ def test_state_dict_round_trip(name: str) -> None:
     assert torch.allclose(actor2(obs), actor(obs)) and torch.allclose(critic2(obs), critic(obs))
     if isinstance(actor, DetachModel):
         assert actor2.aux_losses(obs)["R1"].item() == 0.0 and bool(actor2.trunk.env_anchor.valid)
+
+
+@pytest.mark.parametrize("kind", ["detach", "tokenhsi", "cml"])
+def test_shared_trunk_critic_reads_the_actors_trunk(kind: str) -> None:
+    torch.manual_seed(0)
+    cfg = dataclasses.replace(KINDS[kind], shared_trunk=True)
+    obs = random_obs(8)
+    actor, critic = build_actor_critic(cfg, SPEC, obs)
+    assert not critic.owns_trunk and critic.head_groups == ("critic",)
+    trunk_ids = {id(p) for p in actor.trunk.parameters()}
+    assert not trunk_ids & {id(p) for p in critic.parameters()}, "trunk parameters listed twice"
+    assert not any(k.startswith("trunk.") for k in critic.state_dict())
+    # The value of a fresh trunk pass equals the value that reuses the actor's pass on the same obs.
+    fresh = critic(obs)
+    actor(obs)
+    reused = critic(obs)
+    assert torch.allclose(fresh, reused, atol=1e-6)
+    # The value loss trains the shared trunk; the privileged group reaches the value.
+    critic(obs).pow(2).mean().backward()
+    aux_heads = {id(p) for m in getattr(actor.trunk, "pretrain_head_modules", list)()
+                 for p in m.parameters()}  # DETACH's decoders: trained by aux losses only
+    missing = [n for n, p in actor.trunk.named_parameters() if id(p) not in aux_heads and p.grad is None]
+    assert not missing, f"value loss does not reach {missing}"
+    moved = obs.clone()
+    moved["critic"] = moved["critic"] + 1.0
+    assert not torch.allclose(critic(moved), critic(obs))
+    # A critic built without shared_trunk keeps its own trunk and refuses to be linked.
+    _, own = build_actor_critic(KINDS[kind], SPEC, obs)
+    assert own.owns_trunk
+    with pytest.raises(ValueError, match="not built as a shared-trunk critic"):
+        own.share_trunk_of(actor)
 
 
 def test_snapshot_and_encoder_preservation() -> None:

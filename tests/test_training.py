@@ -66,3 +66,19 @@ def test_fusion_stage_leaves_encoders_bit_identical() -> None:
     assert any(not torch.equal(a, p) for a, p in zip(fusion_before, actor.fusion_parameters())), \
         "stage 2 trains the fusion layers"
     assert trainable == {"pretrain0": True, "fusion1": False, "fusion2": False, "joint3": True}
+
+
+def test_shared_trunk_is_optimised_once() -> None:
+    """configs/models/detach.yaml: the critic reads the actor's trunk and the optimiser lists
+    each parameter once (a duplicate would get two Adam steps per update)."""
+    cfg = resolve(ROOT / "configs/tasks/follow.yaml", "detach",
+                  [*TINY, "train.max_iterations=2", "train.stages.pretrain=1"])
+    assert cfg.model.shared_trunk
+    _env, runner = build_runner(cfg, None, "cpu", progress=False)
+    alg = runner.alg
+    listed = [p for g in alg.optimizer.param_groups for p in g["params"]]
+    assert len({id(p) for p in listed}) == len(listed)
+    assert {id(p) for p in listed} == {id(p) for m in (alg.actor, alg.critic) for p in m.parameters()}
+    assert not alg.critic.owns_trunk and alg.critic.head_groups == ("critic",)
+    runner.learn(2)
+    assert runner.completed_iteration == 1

@@ -22,6 +22,7 @@ from detach.models.rsl_rl_models import (
     MLPBaselineModel,
     StructuredModel,
     TokenHSIModel,
+    link_shared_trunk,
 )
 
 MODEL_CLASSES: dict[str, type[StructuredModel]] = {
@@ -73,7 +74,7 @@ def build_actor_critic(
     obs_groups: dict[str, list[str]] | None = None,
     num_actions: int | None = None,
 ) -> tuple[StructuredModel, StructuredModel]:
-    """Instantiate (actor, critic) exactly as rsl-rl's PPO.construct_algorithm does."""
+    """Instantiate (actor, critic) as rsl-rl's PPO.construct_algorithm + AmpPPO do (trunk linked)."""
     groups = obs_groups or DEFAULT_OBS_GROUPS
     actor_cfg, critic_cfg = rsl_rl_model_cfgs(model_cfg, obs_spec)
     actor_cls, actor_kwargs = resolve_class(actor_cfg)
@@ -81,4 +82,5 @@ def build_actor_critic(
     n_act = obs_spec.num_actions if num_actions is None else num_actions
     actor = actor_cls(obs, groups, "actor", n_act, **actor_kwargs)
     critic = critic_cls(obs, groups, "critic", 1, **critic_kwargs)
+    link_shared_trunk(actor, critic)
     return actor, critic

@@ -8,13 +8,18 @@ calls only the `MLPModel` API (forward with `stochastic_output`, `get_output_log
 adapter MLP `adapter_units`, e.g. [1024, 512]) is the policy head (Gaussian actions through
 rsl-rl's distribution) or the value head.
 
-Actor and critic (design choice): two separate instances of the same architecture, the critic
-with the extra privileged `critic` group as one more token/input. The paper's φ is shared by
-the env and self streams and feeds separate policy and value heads; a trunk shared between
-actor and critic would need deduplicated parameters in PPO's optimizer, one joint gradient
-clip (PPO clips actor and critic separately) and a tuned value-loss scale, all at odds with
-stock rsl-rl. Consequence: each instance has its own encoders; train both with the auxiliary
-losses or copy the pretrained ones with `critic.load_encoders_from(actor)`.
+Actor and critic: rsl-rl builds two instances of the same class. By default each has its own
+trunk, the critic with the extra privileged `critic` group as one more token/input; train both
+with the auxiliary losses or copy the pretrained encoders with `critic.load_encoders_from(actor)`.
+With `model.shared_trunk` (the paper's design: V(s) = ValueHead(h_transformer)) the critic
+builds its trunk on the actor's groups and `link_shared_trunk(actor, critic)` (called by
+`build_actor_critic` and `AmpPPO` before the optimiser exists) swaps it for the actor's: the
+critic then holds the actor by reference, not as a submodule, so the trunk's parameters are
+in the optimiser, in checkpoints and under PPO's gradient clip once (as the actor's), and the
+value loss reaches the trunk through the critic's latent. The value head reads
+[h; the critic's extra groups flat]. Cost: PPO calls actor(obs) then critic(obs) on the same
+TensorDict (rollout and every mini-batch); the critic reuses the h of that actor pass, so one
+trunk pass serves both (measured in benchmarks/bench_ppo_iteration.py).
 
 Multi-head critic (CML, any kind): with `value_objectives = [o_1, ..., o_K]` the value MLP
 outputs K values. `forward(obs)` — what PPO's value path gets — returns [N, 1], the weighted
@@ -71,14 +76,24 @@ class StructuredModel(MLPModel):
         value_objectives: Sequence[str] | None = None,
     ) -> None:
         cfg = model_cfg_from_dict(model)
-        layout = ObsLayout.from_obs(obs, obs_groups[obs_set], obs_spec_from_dict(obs_spec))
-        trunk = self.trunk_class(layout, cfg)
+        spec = obs_spec_from_dict(obs_spec)
+        layout = ObsLayout.from_obs(obs, obs_groups[obs_set], spec)
+        reads_actor_trunk = cfg.shared_trunk and distribution_cfg is None and obs_set != "actor"
+        trunk_layout = layout
+        if reads_actor_trunk:
+            missing = [g for g in obs_groups["actor"] if g not in layout.groups]
+            if missing:
+                raise ValueError(f"shared_trunk: the {obs_set} set lacks the actor's groups {missing}")
+            trunk_layout = ObsLayout.from_obs(obs, obs_groups["actor"], spec)
+        trunk = self.trunk_class(trunk_layout, cfg)
+        head_groups = tuple(g for g in layout.groups if g not in trunk_layout.groups)
         objectives = tuple(value_objectives or ())
         if objectives and distribution_cfg is not None:
             raise ValueError("value_objectives is for critics; an actor with distribution_cfg has one action head")
         if objectives and output_dim not in (1, len(objectives)):
             raise ValueError(f"critic output_dim {output_dim} does not match value_objectives {list(objectives)}")
-        self._latent_dim = trunk.out_dim  # read by MLPModel.__init__ through _get_latent_dim
+        # read by MLPModel.__init__ through _get_latent_dim
+        self._latent_dim = trunk.out_dim + sum(layout.dim(g) for g in head_groups)
         super().__init__(
             obs,
             obs_groups,
@@ -92,6 +107,9 @@ class StructuredModel(MLPModel):
         self.cfg = cfg
         self.layout = layout
         self.trunk = trunk
+        self.reads_actor_trunk = reads_actor_trunk
+        self.head_groups = head_groups
+        """Groups the head reads directly beside the trunk's h (a shared-trunk critic's extras)."""
         self.value_objectives = objectives
         if objectives:
             self.register_buffer("objective_weights", torch.ones(len(objectives)))
@@ -107,6 +125,46 @@ class StructuredModel(MLPModel):
     def get_latent(
         self, obs: TensorDict, masks: torch.Tensor | None = None, hidden_state: HiddenState = None
     ) -> torch.Tensor:
+        groups = self.normalized_groups(obs)
+        owner = self._trunk_owner
+        if owner is None:
+            h = self.trunk_latent(obs, groups)
+            self._latent_cache = (obs, h)
+        else:
+            h = owner.shared_latent(obs)
+        if self.head_groups:
+            h = torch.cat([h, *(groups[g].flatten(1) for g in self.head_groups)], dim=-1)
+        return h
+
+    def trunk_latent(self, obs: TensorDict, groups: dict[str, torch.Tensor]) -> torch.Tensor:
+        """h = trunk(normalised groups); DetachModel keeps the intermediates for aux_losses."""
+        return self.trunk(groups)
+
+    # ----- shared trunk -----
+    _trunk_owner: StructuredModel | None = None
+    _latent_cache: tuple[TensorDict, torch.Tensor] | None = None
+
+    @property
+    def owns_trunk(self) -> bool:
+        """False for a critic linked to the actor's trunk (it has no trunk of its own)."""
+        return self._trunk_owner is None
+
+    def share_trunk_of(self, actor: StructuredModel) -> None:
+        """Drop this critic's trunk and read `actor`'s from now on (see the module docstring)."""
+        if not self.reads_actor_trunk:
+            raise ValueError("share_trunk_of: this model was not built as a shared-trunk critic")
+        if not actor.owns_trunk or type(actor.trunk) is not type(self.trunk) \
+                or actor.trunk.out_dim != self.trunk.out_dim:
+            raise ValueError("share_trunk_of: the actor's trunk does not match this critic's")
+        del self.trunk
+        object.__setattr__(self, "_trunk_owner", actor)  # plain attribute: not a submodule
+
+    def shared_latent(self, obs: TensorDict) -> torch.Tensor:
+        """h for the critic that reads this trunk: the latent of this model's last forward pass
+        when it was on the very same TensorDict object (consumed once), else a fresh pass."""
+        cache, self._latent_cache = self._latent_cache, None
+        if cache is not None and cache[0] is obs:
+            return cache[1]
         return self.trunk(self.normalized_groups(obs))
 
     def forward(
@@ -184,10 +242,7 @@ class DetachModel(StructuredModel):
     trunk: DetachTrunk
     _forward_cache: tuple[TensorDict, dict[str, torch.Tensor], DetachFeatures] | None = None
 
-    def get_latent(
-        self, obs: TensorDict, masks: torch.Tensor | None = None, hidden_state: HiddenState = None
-    ) -> torch.Tensor:
-        groups = self.normalized_groups(obs)
+    def trunk_latent(self, obs: TensorDict, groups: dict[str, torch.Tensor]) -> torch.Tensor:
         feats = self.trunk.encode(groups)
         # Keep the encoder/fusion outputs of a training forward pass for aux_losses on the same obs.
         self._forward_cache = (obs, groups, feats) if torch.is_grad_enabled() and self.training else None
@@ -244,6 +299,12 @@ class DetachModel(StructuredModel):
         """α, β, γ of f_fused, for logging."""
         f = self.trunk.fusion
         return {"alpha": f.alpha.item(), "beta": f.beta.item(), "gamma": f.gamma.item()}
+
+
+def link_shared_trunk(actor: nn.Module, critic: nn.Module) -> None:
+    """Give a shared-trunk critic the actor's trunk; a no-op for any other pair."""
+    if getattr(critic, "reads_actor_trunk", False) and getattr(critic, "owns_trunk", False):
+        critic.share_trunk_of(actor)
 
 
 class TokenHSIModel(StructuredModel):

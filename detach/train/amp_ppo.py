@@ -13,6 +13,8 @@ What it adds to PPO:
 - Multi-objective critics (CML): a critic with `num_objectives = K` predicts one value per
   objective ([task, style or style parts]); GAE runs per objective and advantages are
   normalised per objective before their weighted sum (CML's per-objective normalisation).
+- Shared trunk (`model.shared_trunk`): the critic is linked to the actor's trunk before PPO
+  builds its optimiser (`link_shared_trunk`), so the trunk's parameters are listed once.
 - Stages (DETACH): `stage` is set by the runner each iteration. In "pretrain" PPO does not
   update; only `aux_loss_fn(obs, stage)` is minimised (encoder pre-training). In other stages
   PPO updates and then `aux_loss_fn` runs over the same rollout (alternating optimisation
@@ -28,6 +30,7 @@ import torch
 from tensordict import TensorDict
 from rsl_rl.algorithms import PPO
 
+from detach.models.rsl_rl_models import link_shared_trunk
 from detach.train.discriminator import AmpDiscriminator, ReplayBuffer
 
 AuxLossFn = Callable[[TensorDict, str], tuple[torch.Tensor, dict[str, float]]]
@@ -37,6 +40,7 @@ ReferenceSampler = Callable[[int], tuple[torch.Tensor, torch.Tensor]]
 class AmpPPO(PPO):
     def __init__(self, actor, critic, storage, amp_cfg: dict | None = None,
                  aux_updates: int = 1, **ppo_kwargs) -> None:
+        link_shared_trunk(actor, critic)  # before PPO lists the parameters for its optimiser
         super().__init__(actor, critic, storage, **ppo_kwargs)
         if ppo_kwargs.get("optimizer", "adam") == "adam":
             # Fused Adam: the same update, ~4x faster per step on CPU for our ~10M parameters

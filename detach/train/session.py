@@ -60,8 +60,10 @@ def train_cfg_dict(cfg: RunConfig, env: LHEnv) -> dict:
 
 
 def _stage_hook(runner: DetachRunner):
-    """DETACH's protocol on both networks: snapshot + freeze entering stage 2, unfreeze in 3."""
-    models = [m for m in (runner.alg.actor, runner.alg.critic) if hasattr(m, "freeze_encoders")]
+    """DETACH's protocol on each DETACH trunk (the actor's, and the critic's unless it shares
+    the actor's): snapshot + freeze entering stage 2, unfreeze in 3."""
+    models = [m for m in (runner.alg.actor, runner.alg.critic)
+              if hasattr(m, "freeze_encoders") and m.owns_trunk]
 
     def on_stage(stage: str) -> None:
         print(f"stage: {stage}", flush=True)
@@ -98,12 +100,13 @@ def build_runner(cfg: RunConfig, run: RunFolder | None, device: str,
     runner.on_stage = on_stage
     if detach_models:
         def aux_loss(obs, stage: str):
-            """Weighted loss of the stage on both networks; every term logged per stage."""
+            """Weighted loss of the stage on each DETACH trunk; every term logged per stage."""
             parts = {}
             total = torch.zeros((), device=device)
+            if stage == "pretrain":  # no PPO update normalises the inputs in this stage
+                alg.actor.update_normalization(obs)
+                alg.critic.update_normalization(obs)
             for name, model in zip(("actor", "critic"), detach_models):
-                if stage == "pretrain":
-                    model.update_normalization(obs)
                 terms = model.aux_losses(obs)
                 loss = combine_aux_losses(terms, stage, model.cfg.regularizers)
                 total = total + loss
