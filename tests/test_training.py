@@ -68,17 +68,27 @@ def test_fusion_stage_leaves_encoders_bit_identical() -> None:
     assert trainable == {"pretrain0": True, "fusion1": False, "fusion2": False, "joint3": True}
 
 
-def test_shared_trunk_is_optimised_once() -> None:
-    """configs/models/detach.yaml: the critic reads the actor's trunk and the optimiser lists
-    each parameter once (a duplicate would get two Adam steps per update)."""
+def test_shared_trunk_is_optimised_once_and_resumes(tmp_path: Path) -> None:
+    """configs/models/detach.yaml: the critic reads the actor's trunk, the optimiser lists each
+    parameter once (a duplicate would get two Adam steps per update), and a checkpoint
+    restores trunk, value head and optimiser state."""
     cfg = resolve(ROOT / "configs/tasks/follow.yaml", "detach",
                   [*TINY, "train.max_iterations=2", "train.stages.pretrain=1"])
     assert cfg.model.shared_trunk
-    _env, runner = build_runner(cfg, None, "cpu", progress=False)
+    env, runner = build_runner(cfg, None, "cpu", progress=False)
     alg = runner.alg
     listed = [p for g in alg.optimizer.param_groups for p in g["params"]]
     assert len({id(p) for p in listed}) == len(listed)
     assert {id(p) for p in listed} == {id(p) for m in (alg.actor, alg.critic) for p in m.parameters()}
     assert not alg.critic.owns_trunk and alg.critic.head_groups == ("critic",)
+    runner.checkpoint_dir = tmp_path
     runner.learn(2)
-    assert runner.completed_iteration == 1
+    _env2, resumed = build_runner(cfg, None, "cpu", progress=False)
+    assert resumed.load_checkpoint(tmp_path / "model_1.pt") == 2
+    obs = env.get_observations()
+    with torch.no_grad():
+        assert torch.equal(resumed.alg.critic(obs), alg.critic(obs))
+        assert torch.equal(resumed.alg.actor(obs), alg.actor(obs))
+    a, b = alg.optimizer.state_dict(), resumed.alg.optimizer.state_dict()
+    assert a["state"].keys() == b["state"].keys()
+    assert all(torch.equal(v, b["state"][k][name]) for k in a["state"] for name, v in a["state"][k].items())
