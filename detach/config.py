@@ -18,8 +18,7 @@ from typing import Any, Sequence
 import yaml
 
 from detach.config_schema import (
-    CHARACTER_ACTION_STD, EnvCfg, EvalCfg, ModelCfg, RewardsCfg, RunConfig, SimCfg, TaskCfg,
-    TrainCfg,
+    EnvCfg, EvalCfg, ModelCfg, RewardsCfg, RunConfig, SimCfg, TaskCfg, TrainCfg, action_std,
 )
 from detach.config_validate import Builder, describe, suggest, to_plain
 from detach.yaml_source import ConfigError, KeyPath, Provenance, format_path, load_yaml, parse_scalar
@@ -177,9 +176,9 @@ def _build_run(data: dict[str, Any], prov: Provenance, file: str,
     sections = {name: builder.build(cls, data.get(name, {}), (name,))
                 for name, cls in {**TASK_SECTIONS, **MODEL_SECTIONS}.items()}
     check_model(sections["model"], builder)
-    if sections["model"].init_noise_std is None:
-        std = CHARACTER_ACTION_STD[sections["env"].character]
-        sections["model"] = dataclasses.replace(sections["model"], init_noise_std=std)
+    model = sections["model"]
+    sections["model"] = dataclasses.replace(
+        model, init_noise_std=action_std(model.init_noise_std, sections["env"].character))
     hints = typing.get_type_hints(RunConfig)
     runs = {k: builder.build(hints[k], data.get(k, run_keys[k]), (k,)) for k in RUN_KEYS}
     return RunConfig(task=task, **runs, **sections)

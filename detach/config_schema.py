@@ -109,6 +109,11 @@ the power penalty then dominates and episodes end in ~37 steps; the puppet, whos
 three root-velocity actions, learns fastest with 1 (0.5 and 0.2 were slower)."""
 
 
+def action_std(init_noise_std: float | None, character: str) -> float:
+    """`model.init_noise_std`, or the character's std when it is None (null in YAML)."""
+    return CHARACTER_ACTION_STD[character] if init_noise_std is None else init_noise_std
+
+
 @dataclass(frozen=True)
 class EnvCfg:
     character: Literal["humanoid", "puppet"] = "humanoid"

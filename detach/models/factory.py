@@ -13,7 +13,7 @@ from typing import Any
 from rsl_rl.utils import resolve_class
 from tensordict import TensorDict
 
-from detach.config_schema import CHARACTER_ACTION_STD, EnvCfg, ModelCfg
+from detach.config_schema import EnvCfg, ModelCfg, action_std
 from detach.config_validate import to_plain
 from detach.envs.obs_spec import ObsSpec
 from detach.models.rsl_rl_models import (
@@ -59,9 +59,8 @@ def rsl_rl_model_cfgs(model_cfg: ModelCfg, obs_spec: ObsSpec) -> tuple[dict, dic
         "obs_spec": obs_spec.to_dict(),
         "model": to_plain(model_cfg),
     }
-    std = model_cfg.init_noise_std
-    if std is None:  # a model built without a run config: the default character's
-        std = CHARACTER_ACTION_STD[EnvCfg.character]
+    # A resolved run config has the number; a bare ModelCfg gets the default character's.
+    std = action_std(model_cfg.init_noise_std, EnvCfg.character)
     actor = {**common, "distribution_cfg": {"class_name": GAUSSIAN, "init_std": std}}
     critic = {**to_plain(common), "value_objectives": list(model_cfg.critic_objectives)}
     return to_plain(actor), critic
