@@ -29,7 +29,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from detach.envs.humanoid import BODY_NAMES, build_humanoid_model  # noqa: E402
+from detach.character import build_character_model  # noqa: E402
+from detach.character.body import BODY_NAMES  # noqa: E402
+from detach.run_contract import EpisodeFrame  # noqa: E402
 from detach.runs.folder import RunFolder  # noqa: E402
 from detach.runs.mcap_log import RunLogWriter, read_episodes, read_metrics  # noqa: E402
 from server.log_tail import LogTail  # noqa: E402
@@ -56,7 +58,7 @@ def big_log(run: RunFolder, megabytes: float, frames_per_episode: int = 300) -> 
     from detach.runs.mcap_log import read_scene
 
     scene = read_scene(run.log_path)
-    model = build_humanoid_model()
+    model = build_character_model()
     base_pos, base_quat = walk_frames(model, frames_per_episode, (9.5, 3.0), math.pi)
     rng = np.random.default_rng(0)
     log = RunLogWriter(run.log_path)
@@ -65,10 +67,10 @@ def big_log(run: RunFolder, megabytes: float, frames_per_episode: int = 300) -> 
     while run.log_path.stat().st_size < megabytes * 1e6:
         noise = rng.normal(0, 0.01, base_pos.shape)
         for f in range(frames_per_episode):
-            log.log_frame(episode, f, f / 30, BODY_NAMES, base_pos[f] + noise[f], base_quat[f],
-                          objects=[{"name": "box", "pos": [4.5, -4.0, 0.35],
-                                    "quat": [1, 0, 0, 0]}], subtask=f * 4 // frames_per_episode,
-                          skill="traj")
+            log.log_frame(EpisodeFrame(episode, f, f / 30, list(BODY_NAMES), (base_pos[f] + noise[f]).tolist(),
+                                       base_quat[f].tolist(), objects=[{"name": "box", "pos": [4.5, -4.0, 0.35],
+                                                                        "quat": [1, 0, 0, 0]}],
+                                       subtask=f * 4 // frames_per_episode, skill="follow"))
             frames += 1
             if f % 30 == 0:
                 log.log_metrics(it, {"reward/mean": it * 1e-3, "loss/value": 1 / (1 + it),
@@ -165,8 +167,8 @@ def main() -> None:
         """The live run writes one more iteration and 30 frames of its newest episode."""
         writer.log_metrics(10**6 + appended[0], {"reward/mean": 1.0})
         for f in range(appended[0] * 30, appended[0] * 30 + 30):
-            writer.log_frame(episodes, f, f / 30, BODY_NAMES, np.zeros((15, 3)),
-                             np.tile([1.0, 0, 0, 0], (15, 1)))
+            writer.log_frame(EpisodeFrame(episodes, f, f / 30, list(BODY_NAMES), np.zeros((15, 3)).tolist(),
+                                          np.tile([1.0, 0, 0, 0], (15, 1)).tolist()))
         appended[0] += 1
         writer.flush()
         return index.refresh()

@@ -32,8 +32,10 @@ def bench(task: str, n: int, steps: int, nthread: int, reps: int) -> dict:
     and keep each one's fastest chunk: on a shared machine the minimum is the least disturbed."""
     from detach.config import resolve
     from detach.envs.lh_env import make_env
+    from scene_builder.assets import ensure_assets
 
     cfg = resolve(task, "mlp", ["env.character=humanoid", f"sim.nthread={nthread}"])
+    ensure_assets(cfg.task)
     env = make_env(cfg, num_envs=n, verbose=False)
     sub = env.substeps
     # same model, same threads, plain stepping (persistent: a model with sleep requires it)

@@ -23,16 +23,20 @@ import torch
 from tensordict import TensorDict
 
 from detach.config_schema import ModelCfg
+from detach.models.cml import CMLCfg
+from detach.models.detach_net import DetachCfg
+from detach.models.mlp import MLPCfg
+from detach.models.tokenhsi import TokenHSICfg
 from detach.envs.obs_spec import EXAMPLE_SPEC
 from detach.models import build_actor_critic
 
 CONFIGS: dict[str, ModelCfg] = {
-    "mlp": ModelCfg(kind="mlp"),
-    "detach": ModelCfg(kind="detach"),
-    "ablation_a1": ModelCfg(kind="detach", use_env_encoder=False),
-    "ablation_a2": ModelCfg(kind="detach", use_self_encoder=False),
-    "tokenhsi": ModelCfg(kind="tokenhsi", num_heads=2, ff_dim=512),
-    "cml": ModelCfg(kind="cml", critic_objectives=("task", "disc_upper", "disc_lower")),
+    "mlp": MLPCfg(),
+    "detach": DetachCfg(),
+    "ablation_a1": DetachCfg(use_env_encoder=False),
+    "ablation_a2": DetachCfg(use_self_encoder=False),
+    "tokenhsi": TokenHSICfg(num_heads=2, ff_dim=512),
+    "cml": CMLCfg(critic_objectives=("task", "disc_upper", "disc_lower")),
 }
 
 

@@ -17,6 +17,7 @@ import torch
 from detach.config import resolve
 from detach.envs.lh_env import make_env
 from detach.models.factory import build_actor_critic
+from scene_builder.assets import ensure_assets
 
 
 def main() -> None:
@@ -27,6 +28,7 @@ def main() -> None:
     torch.set_num_threads(1)
     root = Path(__file__).resolve().parents[1]
     cfg = resolve(root / "configs/tasks/follow.yaml", args.model, ["env.character=puppet"])
+    ensure_assets(cfg.task)
     env = make_env(cfg, num_envs=2, verbose=False)
     actor, critic = build_actor_critic(cfg.model, env.obs_spec, env.get_observations(),
                                        num_actions=env.num_actions)

@@ -25,7 +25,7 @@ import torch
 
 from detach.config import resolve
 from detach.models.encoders import EnvEncoder
-from detach.train.session import build_runner
+from detach.train.setup import build_runner
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -21,7 +21,7 @@ from pathlib import Path
 import torch
 
 from detach.runs.folder import RunFolder
-from detach.train.session import build_runner
+from detach.train.setup import build_runner
 
 
 def rollout(env, policy, scorer, steps: int) -> dict[str, float]:

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Sequence
 
 from detach.config import ConfigError, dump, resolve
+from detach.run_contract import LIVE_STATES
 from detach.runs.folder import RunFolder, run_folder_name
 
 EXIT_USAGE = 2
@@ -170,13 +171,15 @@ def _train(args: argparse.Namespace) -> int:
     for extra in args.eval_on:
         if not extra.exists():
             raise ConfigError("task file not found (--eval-on)", str(extra))
-    cfg = resolve(args.task, args.model, args.overrides, seed=args.seed, device=args.device)
+    from detach.train.checks import complete_run_config
+
+    cfg = complete_run_config(resolve(args.task, args.model, args.overrides, seed=args.seed, device=args.device))
     if args.dry_run:
         sys.stdout.write(dump(cfg))
         print(f"# run folder: {args.out / run_folder_name(cfg)}")
         return 0
     from detach.runs.job import run_job
-    from detach.train.session import train_and_evaluate
+    from detach.runs.session import train_and_evaluate
 
     run = RunFolder.create(args.out, cfg)
     if args.cell:
@@ -199,7 +202,7 @@ def _resume(args: argparse.Namespace) -> int:
         _extend_config(run, args.overrides)
     run.config()  # validates the stored config as a user error, not a traceback
     from detach.runs.job import run_job
-    from detach.train.session import train_and_evaluate
+    from detach.runs.session import train_and_evaluate
 
     print(f"resuming {run.path} from {run.latest_checkpoint().name}")
     return run_job(run, lambda r: train_and_evaluate(
@@ -216,8 +219,8 @@ def _alive_pid(run: RunFolder) -> int | None:
         status = run.status()
     except (OSError, ValueError):
         return None
-    pid = status.get("pid")
-    if status.get("state") not in ("queued", "running") or not pid or pid == os.getpid():
+    pid = status.pid
+    if status.state not in LIVE_STATES or not pid or pid == os.getpid():
         return None
     try:
         os.kill(int(pid), 0)
@@ -232,7 +235,7 @@ def _refuse_if_alive(run: RunFolder) -> None:
     """Two processes training one run folder would corrupt it."""
     pid = _alive_pid(run)
     if pid is not None:
-        raise ConfigError(f"run is still {run.status()['state']} (pid {pid}); stop it first "
+        raise ConfigError(f"run is still {run.status().state} (pid {pid}); stop it first "
                           f"(kill -TERM {pid}) and resume when it is interrupted", str(run.path))
 
 
@@ -264,7 +267,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         raise ConfigError("run has no checkpoint to evaluate", str(run.path))
     if args.eval_task is not None and not args.eval_task.exists():
         raise ConfigError("task file not found (--task)", str(args.eval_task))
-    from detach.train.session import evaluate_run
+    from detach.runs.session import evaluate_run
 
     live = _alive_pid(run) is not None
     if live:

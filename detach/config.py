@@ -17,11 +17,11 @@ from typing import Any, Sequence
 
 import yaml
 
-from detach.config_schema import (
-    EnvCfg, EvalCfg, ModelCfg, RewardsCfg, RunConfig, SimCfg, TaskCfg, TrainCfg, action_std,
-)
+from detach.config_schema import EnvCfg, EvalCfg, ModelCfg, RewardsCfg, RunConfig, SimCfg, TaskCfg, TrainCfg
 from detach.config_validate import Builder, describe, suggest, to_plain
-from detach.yaml_source import ConfigError, KeyPath, Provenance, format_path, load_yaml, parse_scalar
+from detach.yaml_source import (
+    ConfigError, ConfigOrigin, KeyPath, Provenance, format_path, load_yaml, parse_scalar,
+)
 
 TASK_SECTIONS: dict[str, Any] = {"sim": SimCfg, "env": EnvCfg, "rewards": RewardsCfg,
                                  "eval": EvalCfg}
@@ -98,11 +98,18 @@ def _parse_key(text: str) -> KeyPath:
     return tuple(parts)
 
 
-def _schema_children(tp: Any) -> dict[str, Any] | None:
-    """Field name -> type for a dataclass type (or Optional of one), else None."""
+def _schema_children(tp: Any, node: Any = None) -> dict[str, Any] | None:
+    """Field name -> type for a dataclass type (or Optional of one), else None. A family of
+    configs (`kind_class`) resolves to the class of the node's `kind`."""
     for candidate in (tp, *typing.get_args(tp)):
         if dataclasses.is_dataclass(candidate):
-            return typing.get_type_hints(candidate)
+            if hasattr(candidate, "kind_class") and isinstance(node, dict) and isinstance(node.get("kind"), str):
+                try:
+                    candidate = candidate.kind_class(node["kind"])
+                except ValueError:
+                    pass
+            hints = typing.get_type_hints(candidate)
+            return {f.name: hints[f.name] for f in dataclasses.fields(candidate)}
     return None
 
 
@@ -133,7 +140,7 @@ def apply_overrides(data: dict[str, Any], overrides: Sequence[str], prov: Proven
                                       f"{len(node)} items)", *origin, here)
                 child_tp = _list_item_type(node_tp) if node_tp is not None else None
             elif isinstance(node, dict):
-                children = _top_schema() if depth == 0 else _schema_children(node_tp)
+                children = _top_schema() if depth == 0 else _schema_children(node_tp, node)
                 known = part in node or (children is not None and part in children)
                 if not known and not add:
                     valid = [str(k) for k in node] + list(children or {})
@@ -176,29 +183,22 @@ def _build_run(data: dict[str, Any], prov: Provenance, file: str,
     sections = {name: builder.build(cls, data.get(name, {}), (name,))
                 for name, cls in {**TASK_SECTIONS, **MODEL_SECTIONS}.items()}
     check_model(sections["model"], builder)
-    model = sections["model"]
-    sections["model"] = dataclasses.replace(
-        model, init_noise_std=action_std(model.init_noise_std, sections["env"].character))
     hints = typing.get_type_hints(RunConfig)
     runs = {k: builder.build(hints[k], data.get(k, run_keys[k]), (k,)) for k in RUN_KEYS}
-    return RunConfig(task=task, **runs, **sections)
+    return RunConfig(task=task, **runs, **sections, origin=ConfigOrigin(file, prov))
 
 
 def check_model(model: ModelCfg, builder: Builder) -> None:
-    """Model fields that only some kinds read."""
-    if model.history_frames < 0:
-        raise builder.error(("model", "history_frames"), f"expected >= 0 (0 = every frame), "
-                                                         f"found {model.history_frames}")
-    if model.history_frames and model.kind != "mlp":
-        raise builder.error(("model", "history_frames"), f"only the mlp kind reads it; "
-                                                         f"'{model.kind}' uses every frame")
-    if model.shared_trunk and model.kind == "mlp":
-        raise builder.error(("model", "shared_trunk"), "the mlp kind has no trunk to share; "
-                                                       "use detach, tokenhsi or cml")
+    """A model kind's own cross-field rules (`invalid()` of its config class)."""
+    invalid = getattr(model, "invalid", None)
+    problem = invalid() if invalid is not None else None
+    if problem is not None:
+        raise builder.error(("model", problem[0]), problem[1])
 
 
 def check_task(task: TaskCfg, builder: Builder) -> None:
-    """Cross-field rules of the paper's plan vocabulary."""
+    """Cross-field rules of the plan vocabulary that hold for every skill (each skill checks
+    its own entries later: `detach.skills.plan.compile_plan`)."""
     n = len(task.plan)
     for key in ("target_object", "sample_target_from"):
         if len(getattr(task, key)) != n:
@@ -228,12 +228,6 @@ def check_task(task: TaskCfg, builder: Builder) -> None:
                 have = sorted(task.trajectories) if kind == "traj" else f"{size} entries"
                 raise builder.error(("sample_target_from", i),
                                     f"{source!r} names a missing {what} entry (have {have})")
-        if skill in ("carry", "climb", "sit") and not 0 <= obj < len(task.scene):
-            raise builder.error(("target_object", i), f"object index {obj} for '{skill}' "
-                                f"does not exist (scene has {len(task.scene)} objects)")
-        if skill == "carry" and task.scene and task.scene[obj].static:
-            raise builder.error(("target_object", i), f"'carry' needs a dynamic object, but "
-                                f"scene[{obj}] ({task.scene[obj].name}) is static")
     for key, points in task.trajectories.items():
         if len(points) < 2:
             raise builder.error(("trajectories", key), f"expected at least 2 waypoints, "
@@ -287,6 +281,37 @@ def resolve(task_path: str | Path, model_name: str = "mlp", overrides: Sequence[
     return _build_run(data, prov, str(task_path), run_keys)
 
 
+LEGACY_KEYS: dict[KeyPath, str] = {
+    ("rewards", "decoupling_mask_strength"): "never read",
+}
+"""Keys that resolved configs of older versions carry and this version dropped (with why)."""
+FLAT_MODEL_FIELDS = frozenset((
+    "d_model", "num_layers", "num_heads", "ff_dim", "adapter_units", "activation", "use_env_encoder",
+    "use_self_encoder", "env_encoder", "self_encoder", "fusion", "regularizers", "tokenizer_units",
+    "gru_hidden", "critic_objectives", "init_noise_std", "history_frames", "shared_trunk", "obs_normalization"))
+"""Fields of the single model class of earlier versions; each kind now declares its own."""
+
+
+def _drop_legacy(data: dict[str, Any]) -> None:
+    """Let config.yaml files of earlier runs load: drop keys this version removed, and fields
+    of the old single model class that the run's model kind does not declare."""
+    for path in LEGACY_KEYS:
+        node = data
+        for key in path[:-1]:
+            node = node.get(key) if isinstance(node, dict) else None
+        if isinstance(node, dict):
+            node.pop(path[-1], None)
+    model = data.get("model")
+    if isinstance(model, dict) and isinstance(model.get("kind"), str):
+        try:
+            cls = ModelCfg.kind_class(model["kind"])
+        except ValueError:
+            return
+        known = {f.name for f in dataclasses.fields(cls)}
+        for key in [k for k in model if k not in known and k in FLAT_MODEL_FIELDS]:
+            del model[key]
+
+
 def load_task(task_path: str | Path) -> TaskCfg:
     """Only the task part of a task YAML (what the asset builder needs)."""
     task_path = Path(task_path)
@@ -326,6 +351,7 @@ def load_run_config(path: str | Path, overrides: Sequence[str] = ()) -> RunConfi
     if "extends" in data:
         raise ConfigError("a resolved run config cannot use extends", str(path),
                           prov[("extends",)][1], ("extends",))
+    _drop_legacy(data)
     apply_overrides(data, overrides, prov)
     missing = [k for k in RUN_KEYS if k not in data]
     if missing:

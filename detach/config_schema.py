@@ -7,11 +7,12 @@ radians; positions are world frame unless a field says otherwise.
 
 from __future__ import annotations
 
+import importlib
 from dataclasses import dataclass, field
-from typing import Literal
+from importlib.metadata import entry_points
+from typing import ClassVar, Literal
 
-SKILLS: tuple[str, ...] = ("traj", "carry", "climb", "sit")
-"""Skill vocabulary of the paper's plans; `task` one-hot observations use this order."""
+from detach.yaml_source import ConfigOrigin
 
 Vec2 = tuple[float, float]
 Vec3 = tuple[float, float, float]
@@ -58,7 +59,8 @@ class TaskCfg:
     trajectories: dict[int, tuple[Vec2, ...]] = field(default_factory=dict)
     target_positions: tuple[Vec3, ...] = ()
     humanoid: HumanoidCfg = HumanoidCfg()
-    plan: tuple[Literal["traj", "carry", "climb", "sit"], ...] = ("traj",)
+    plan: tuple[str, ...] = ("follow",)
+    """Skill names (`detach.skills`: follow, carry, climb, sit, plug-ins; `traj` = follow)."""
     target_object: tuple[int, ...] = (0,)
     sample_target_from: tuple[str, ...] = ("traj_0",)
     """`traj_K` (trajectory K; procedural when K is `rand`), `tarpos_K`, `scene_K`."""
@@ -66,6 +68,8 @@ class TaskCfg:
 
 @dataclass(frozen=True)
 class SimCfg:
+    backend: str = "mujoco_batch"
+    """Physics backend (`detach.sim`): `mujoco_batch` (CPU, all cores)."""
     num_envs: int = 64
     physics_dt: float = 1.0 / 120.0
     substeps: int = 4
@@ -92,6 +96,7 @@ class TrajectoryGenCfg:
     """Procedural reference trajectories for `follow` (paper: Data Generation Parameters)."""
 
     num_samples: int = 10
+    """Points of the path ahead in each env observation frame, `sample_dt` s apart."""
     sample_dt: float = 0.5
     speed_min: float = 1.4
     speed_max: float = 1.5
@@ -102,21 +107,10 @@ class TrajectoryGenCfg:
     """Vertices of one generated trajectory (covers a whole episode)."""
 
 
-CHARACTER_ACTION_STD: dict[str, float] = {"humanoid": 0.1, "puppet": 1.0}
-"""Initial policy action std per character (`model.init_noise_std: null` picks it). Measured
-(benchmarks/RESULTS.md): std 1 makes the humanoid's PD targets jump by its whole joint range,
-the power penalty then dominates and episodes end in ~37 steps; the puppet, whose task rides on
-three root-velocity actions, learns fastest with 1 (0.5 and 0.2 were slower)."""
-
-
-def action_std(init_noise_std: float | None, character: str) -> float:
-    """`model.init_noise_std`, or the character's std when it is None (null in YAML)."""
-    return CHARACTER_ACTION_STD[character] if init_noise_std is None else init_noise_std
-
-
 @dataclass(frozen=True)
 class EnvCfg:
-    character: Literal["humanoid", "puppet"] = "humanoid"
+    character: str = "humanoid"
+    """A registered character (`detach.character`): humanoid or puppet."""
     episode_length: int = 1200
     success_threshold: float = 0.3
     max_transition_steps: int = 60
@@ -144,7 +138,6 @@ class RewardsCfg:
     power_coeff: float = 0.0005
     dyn_obj_speed_penalty_coeff: float = 1.0
     dyn_obj_speed_threshold: float = 1.5
-    decoupling_mask_strength: float = 0.3
     terms: dict[str, float] = field(default_factory=dict)
     """Weights of named reward terms (`<skill>/<term>`); printed as a table at start-up."""
 
@@ -157,86 +150,56 @@ class EvalCfg:
     confidence: float = 0.95
 
 
-@dataclass(frozen=True)
-class EnvEncoderCfg:
-    kernel_sizes: tuple[int, ...] = (1, 3, 5)
-    channels: int = 64
-    attn_heads: int = 4
-    decoder_hidden: int = 256
-    """Hidden width of Decoder_env (per-frame MLP z_env[t] -> env frame)."""
+MODEL_KIND_ENTRY_POINTS = "detach.model_kinds"
+"""Entry-point group naming the config class of each model kind (pyproject.toml); a model YAML
+may also give `kind: package.module:ConfigClass` for a kind that is not installed."""
 
-
-@dataclass(frozen=True)
-class SelfEncoderCfg:
-    hidden: int = 64
-    layers: int = 1
-    decoder_hidden: int = 256
-    """Hidden width of Decoder_self (per-frame MLP z_self[t] -> self frame)."""
-    predictor_hidden: int = 128
-    """Hidden width of the temporal predictor f_pred."""
-
-
-@dataclass(frozen=True)
-class FusionCfg:
-    cross_attn_heads: int = 8
-    gate_hidden: tuple[int, ...] = (128, 64)
-    num_experts: int = 4
-    expert_hidden: tuple[int, ...] = (128, 64)
-
-
-@dataclass(frozen=True)
-class RegularizerCfg:
-    lambda_quality: float = 0.1
-    lambda_disentangle: float = 0.01
-    lambda_r1: float = 0.01
-    lambda_r2: float = 0.01
-    lambda_r3: float = 0.001
-    lambda_temporal: float = 0.001
-    lambda_semantic: float = 0.01
-    lambda_decouple: float = 0.01
-    """Weight of R_decouple = ||Corr(z_env, z_self)||_F^2 in the joint stage."""
-    semantic_env_weight: float = 1.0
-    """alpha of R_semantic (env reconstruction term)."""
-    semantic_self_weight: float = 1.0
-    """beta of R_semantic (self reconstruction term)."""
-    r3_mode: Literal["distance", "cosine"] = "distance"
-    """R3 as printed in the paper (sum of squared distances between fusion outputs, which
-    pulls them together) or `cosine` (mean squared cosine similarity, which pushes them apart,
-    the stated intent "fusion diversity")."""
+_KIND_CLASSES: dict[str, type["ModelCfg"]] = {}
 
 
 @dataclass(frozen=True)
 class ModelCfg:
-    """One network of the study; `kind` picks the class, the other fields its sizes."""
+    """What every network of the study reads; `kind` picks the config class of the network
+    (declared beside it in `detach.models`), which adds that network's own fields."""
 
-    kind: Literal["detach", "tokenhsi", "cml", "mlp"] = "mlp"
-    d_model: int = 64
-    num_layers: int = 4
-    num_heads: int = 8
-    ff_dim: int = 256
+    kind: str = "mlp"
     adapter_units: tuple[int, ...] = (1024, 512)
+    """Hidden widths of the head MLP (policy or value head)."""
     activation: str = "elu"
-    use_env_encoder: bool = True
-    use_self_encoder: bool = True
-    env_encoder: EnvEncoderCfg = EnvEncoderCfg()
-    self_encoder: SelfEncoderCfg = SelfEncoderCfg()
-    fusion: FusionCfg = FusionCfg()
-    regularizers: RegularizerCfg = RegularizerCfg()
-    tokenizer_units: tuple[int, ...] = (256, 128)
-    gru_hidden: int = 256
     critic_objectives: tuple[str, ...] = ("task",)
-    """Value heads of a multi-head critic (CML): one per reward objective."""
+    """Value heads of the critic: one per reward objective (CML's multi-head critic)."""
     init_noise_std: float | None = None
-    """Initial action std of the Gaussian policy; None = the character's
-    (`CHARACTER_ACTION_STD`), filled in when a run config is resolved."""
-    history_frames: int = 0
-    """MLP only: the newest frames of each history group the network reads (0 = all T)."""
-    shared_trunk: bool = False
-    """The critic reads the actor's trunk: its value head sees [h; privileged groups] (the
-    paper's V(s) = ValueHead(h_transformer)), so one trunk is trained and run per update."""
+    """Initial action std of the Gaussian policy; None = the character's (`Character.action_std`),
+    filled in when a run is created so that config.yaml records the number."""
     obs_normalization: bool = True
     """Running mean/std normalisation of the concatenated observation groups (rsl-rl's
     EmpiricalNormalization) before the network; reconstruction targets are normalised too."""
+
+    staged: ClassVar[bool] = False
+    """Trained with DETACH's 3-stage protocol (`train.stages`)."""
+
+    @classmethod
+    def kind_class(cls, kind: str) -> type["ModelCfg"]:
+        """The config class of a model kind: an installed entry point of
+        `MODEL_KIND_ENTRY_POINTS`, or `package.module:Class`; ValueError naming the kinds."""
+        if kind in _KIND_CLASSES:
+            return _KIND_CLASSES[kind]
+        found = {ep.name: ep for ep in entry_points(group=MODEL_KIND_ENTRY_POINTS)}
+        if kind in found:
+            target = found[kind].load()
+        elif ":" in kind:
+            module, _, name = kind.partition(":")
+            try:
+                target = getattr(importlib.import_module(module), name)
+            except (ImportError, AttributeError) as exc:
+                raise ValueError(f"model kind '{kind}' cannot be imported ({exc})") from None
+        else:
+            installed = ", ".join(sorted(found)) or "none installed (pip install -e .)"
+            raise ValueError(f"unknown model kind '{kind}'; available: {installed}, or package.module:ConfigClass")
+        if not (isinstance(target, type) and issubclass(target, ModelCfg)):
+            raise ValueError(f"model kind '{kind}' names {target!r}, not a ModelCfg subclass")
+        _KIND_CLASSES[kind] = target
+        return target
 
 
 @dataclass(frozen=True)
@@ -252,6 +215,8 @@ class AmpCfg:
     replay_size: int = 100000
     batch_size: int = 512
     learning_rate: float = 0.0001
+    disc_updates: int = 2
+    """Discriminator mini-batch updates after each PPO update."""
     body_parts: tuple[str, ...] = ()
     """Body-part discriminators (CML): e.g. (upper, lower); empty = one whole-body one."""
 
@@ -282,6 +247,8 @@ class TrainCfg:
     num_mini_batches: int = 4
     max_grad_norm: float = 1.0
     per_objective_advantage_norm: bool = False
+    """With a multi-head critic (CML), normalise the advantage of each objective before their
+    weighted sum; otherwise the weighted sum is normalised as one."""
     amp: AmpCfg = AmpCfg()
     stages: StagesCfg = StagesCfg()
     torch_threads: int = 0
@@ -303,3 +270,6 @@ class RunConfig:
     eval: EvalCfg
     model: ModelCfg
     train: TrainCfg
+    origin: ConfigOrigin = field(default_factory=ConfigOrigin, compare=False, repr=False,
+                                 metadata={"dump": False})
+    """File and line of every value (errors found after loading still point at them)."""

@@ -13,7 +13,7 @@ import types
 import typing
 from typing import Any, Literal
 
-from detach.yaml_source import ConfigError, KeyPath, Provenance
+from detach.yaml_source import ConfigError, ConfigOrigin, KeyPath, Provenance
 
 
 def suggest(key: str, valid: typing.Iterable[str]) -> str:
@@ -38,11 +38,7 @@ class Builder:
         self.default_file = default_file
 
     def error(self, path: KeyPath, message: str) -> ConfigError:
-        probe = path
-        while probe not in self.prov and probe:
-            probe = probe[:-1]
-        file, line = self.prov.get(probe, (self.default_file, None))
-        return ConfigError(message, file, line, path)
+        return ConfigOrigin(self.default_file, self.prov).error(path, message)
 
     def build(self, tp: Any, value: Any, path: KeyPath) -> Any:
         origin = typing.get_origin(tp)
@@ -107,6 +103,12 @@ class Builder:
         if not isinstance(value, dict):
             raise self.error(path, f"expected a mapping with keys of {cls.__name__}, "
                                    f"found {describe(value)}")
+        if hasattr(cls, "kind_class"):  # a family of configs, one class per `kind`
+            kind = value.get("kind", next(f.default for f in dataclasses.fields(cls) if f.name == "kind"))
+            try:
+                cls = cls.kind_class(kind)
+            except ValueError as exc:
+                raise self.error(path + ("kind",), str(exc)) from None
         hints = typing.get_type_hints(cls)
         fields = {f.name: f for f in dataclasses.fields(cls)}
         for key in value:
@@ -123,9 +125,11 @@ class Builder:
 
 
 def to_plain(obj: Any) -> Any:
-    """Dataclasses/tuples -> dicts/lists, the inverse of `Builder.build` (for dumping)."""
+    """Dataclasses/tuples -> dicts/lists, the inverse of `Builder.build` (for dumping);
+    fields marked `metadata={"dump": False}` are left out."""
     if dataclasses.is_dataclass(obj):
-        return {f.name: to_plain(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+        return {f.name: to_plain(getattr(obj, f.name)) for f in dataclasses.fields(obj)
+                if f.metadata.get("dump", True)}
     if isinstance(obj, (tuple, list)):
         return [to_plain(v) for v in obj]
     if isinstance(obj, dict):

@@ -97,3 +97,22 @@ def parse_scalar(text: str) -> Any:
         return yaml.safe_load(text) if text.strip() else ""
     except yaml.YAMLError:
         return text
+
+
+class ConfigOrigin:
+    """Where a resolved configuration's values came from, so that layers which check values
+    later (plug-in names, plans) still report file and line."""
+
+    def __init__(self, default_file: str = "<config>", prov: Provenance | None = None) -> None:
+        self.default_file, self.prov = default_file, dict(prov or {})
+
+    def error(self, path: KeyPath, message: str) -> ConfigError:
+        """A ConfigError at the nearest key of `path` that has a recorded position."""
+        probe = path
+        while probe not in self.prov and probe:
+            probe = probe[:-1]
+        file, line = self.prov.get(probe, (self.default_file, None))
+        return ConfigError(message, file, line, path)
+
+    def __repr__(self) -> str:
+        return f"ConfigOrigin({self.default_file!r})"

@@ -5,9 +5,11 @@ Stable entry points (the scene compiler and the environments rely on them):
 - `requests_from_task(task, source_root)`: the deduplicated AssetRequests a task needs.
 - `build_assets(requests, out, ...)`: build what is missing (cache, process pool, progress).
 - `load_asset(folder) -> AssetInfo`: one built asset folder, validated.
-- `ensure_assets(task, out) -> {object index: AssetInfo}`: build quietly what is missing,
-  so a run never fails only because `detach-scene build` was skipped.
-Asset folder layout: ARCHITECTURE.md, "Asset folder".
+- `read_assets(task, out) -> {object index: AssetInfo}`: a task's built assets; a missing one
+  is an AssetError that says how to build it (what the scene compiler calls).
+- `ensure_assets(task, out) -> {object index: AssetInfo}`: build what is missing or stale
+  (with a progress line), then read; the runner calls it before it makes an environment.
+Asset folder layout: docs/ARCHITECTURE.md, "Asset folder".
 """
 
 from __future__ import annotations
@@ -32,8 +34,8 @@ from scene_builder.pipeline import (
 )
 
 __all__ = ["AssetError", "AssetInfo", "AssetRequest", "BuildOptions", "BuildResult", "build_assets",
-           "default_assets_root", "ensure_assets", "load_asset", "request_diff", "request_for_object",
-           "requests_from_task"]
+           "default_assets_root", "ensure_assets", "load_asset", "read_assets", "request_diff",
+           "request_for_object", "requests_from_task"]
 
 
 REBUILD = "rebuild with `detach-scene build --force`"
@@ -183,26 +185,57 @@ def build_assets(
     return [results[i] for i in range(len(requests))]
 
 
+def read_assets(task: TaskCfg, out: str | Path | None = None,
+                source_root: str | Path | None = None) -> dict[int, AssetInfo]:
+    """AssetInfo per scene object index, read from `out` (default `default_assets_root()`).
+
+    Builds nothing: an object whose folder is missing is an AssetError naming the folder and
+    the command that builds it."""
+    out = Path(out) if out is not None else default_assets_root()
+    loaded: dict[Path, AssetInfo] = {}
+    by_index = {}
+    for i, obj in enumerate(task.scene):
+        folder = request_for_object(obj, source_root).folder(out)
+        if folder not in loaded:
+            if not (folder / "config.json").is_file():
+                raise AssetError(f"task '{task.name}': scene[{i}] '{obj.name}' needs the asset {folder}, "
+                                 f"which is not built; run `detach-scene build --tasks <task.yaml> --out {out}`")
+            loaded[folder] = load_asset(folder)
+        by_index[i] = loaded[folder]
+    return by_index
+
+
 def ensure_assets(
     task: TaskCfg,
     out: str | Path | None = None,
     source_root: str | Path | None = None,
     options: BuildOptions | None = None,
     jobs: int | None = None,
+    log: Any = None,
 ) -> dict[int, AssetInfo]:
-    """AssetInfo per scene object index, building (quietly) whatever is missing or stale.
+    """AssetInfo per scene object index, building whatever is missing or stale first.
 
-    Raises AssetError (one line, all failures joined) if any asset cannot be built."""
+    `log(line)` (e.g. print) hears one line before a build and one after it, so the wait
+    shows in non-terminal logs too; a warm cache prints nothing. Raises AssetError (one
+    line, all failures joined) if any asset cannot be built."""
     out = Path(out) if out is not None else default_assets_root()
-    results = build_assets(requests_from_task(task, source_root), out, options, jobs)
-    failed = [r.error for r in results if r.status == "failed"]
-    if failed:
-        raise AssetError(f"task '{task.name}': {len(failed)} asset(s) failed: " + "; ".join(failed))
-    loaded: dict[Path, AssetInfo] = {}
-    by_index = {}
-    for i, obj in enumerate(task.scene):
-        folder = request_for_object(obj, source_root).folder(out)
-        if folder not in loaded:
-            loaded[folder] = load_asset(folder)
-        by_index[i] = loaded[folder]
-    return by_index
+    requests = requests_from_task(task, source_root)
+    options = options or BuildOptions()
+    missing = []
+    for req in requests:
+        try:
+            if not check_cache(plan(req, options), out):
+                missing.append(req)
+        except AssetError:
+            missing.append(req)  # build_assets reports it as a failed result
+    if missing:
+        if log is not None:
+            log(f"assets: building {len(missing)} of {len(requests)} for task '{task.name}' into {out}/ "
+                f"(CoACD; cached afterwards)")
+        results = build_assets(missing, out, options, jobs)
+        failed = [r.error for r in results if r.status == "failed"]
+        if failed:
+            raise AssetError(f"task '{task.name}': {len(failed)} asset(s) failed: " + "; ".join(failed))
+        if log is not None:
+            log(f"assets: built {len(results)} in {sum(r.seconds or 0.0 for r in results):.1f} s")
+    return read_assets(task, out, source_root)

@@ -1,6 +1,6 @@
 """Top-down height map of an object: 128x128 rays cast straight down over its bounding box.
 
-Layout (ARCHITECTURE.md, asset folder): row 0 is max Y, the last row min Y; column 0 is min X;
+Layout (docs/ARCHITECTURE.md, "Asset folder"): row 0 is max Y, the last row min Y; column 0 is min X;
 values are metres above the object's lowest point of the first surface a downward ray hits,
 0 where it hits nothing. Rays pass through cell centres, never the bbox edges, because Embree
 misses rays that graze the exact bbox edges; at cell centres both engines agree.

@@ -1,12 +1,13 @@
 """Scene compilation: a task's objects + the character -> one MjModel and a `SceneInfo`.
 
-Every object comes from its asset folder (ARCHITECTURE.md, "Asset folder"): the processed
-mesh is its visual geom, its CoACD hulls are its collision geoms, and its body sits at the
-task's `pos3d` (bbox centre, world) rotated by `z_rot_angle` about +Z. Static objects are
-welded to the world; dynamic ones (boxes) get a free joint and the configured mass with the
-inertia of a solid box. The character (`detach.envs.humanoid`) is added under the world body.
-For the puppet every dynamic object also gets an inactive weld to the pelvis, which the env
-switches on to grasp (`detach.envs.puppet`).
+Every object comes from its asset folder (docs/ARCHITECTURE.md, "Asset folder"), which must
+have been built already (`detach-scene build`, or the runner before it makes an
+environment): compiling a scene only reads files. The processed mesh is an object's visual
+geom, its CoACD hulls are its collision geoms, and its body sits at the task's `pos3d` (bbox
+centre, world) rotated by `z_rot_angle` about +Z. Static objects are welded to the world;
+dynamic ones (boxes) get a free joint and the configured mass with the inertia of a solid box.
+The character (`detach.character`) is added under the world body, and may link itself to the
+dynamic objects (`Character.link_objects`; the puppet's grasp welds).
 
 Geom groups: 0 floor, 1 character, 2 visual meshes (shown by default viewers), 3 collision
 hulls. A static height raster of the scene (world Z of the first surface hit by a ray cast
@@ -25,7 +26,10 @@ import mujoco
 import numpy as np
 import trimesh
 
+from detach.character import Character, add_character
+from detach.character.body import BODY_NAMES, DOF_NAMES, add_floor, configure_options
 from detach.config_schema import SimCfg, TaskCfg
+from scene_builder.assets import AssetInfo, read_assets
 
 GROUP_FLOOR, GROUP_CHARACTER, GROUP_VISUAL, GROUP_COLLISION = 0, 1, 2, 3
 RASTER_SPACING = 0.05
@@ -55,8 +59,8 @@ class SceneObject:
     qpos_adr: int = -1
     """Address of the free joint in qpos (dynamic objects), else -1."""
     qvel_adr: int = -1
-    grasp_eq: int = -1
-    """Equality id of the puppet's weld to this object, else -1."""
+    link_eq: int = -1
+    """Equality id of the character's link to this object (`Character.link_objects`), else -1."""
 
     def to_world(self, local: np.ndarray) -> np.ndarray:
         c, s = math.cos(self.z_rot), math.sin(self.z_rot)
@@ -66,10 +70,6 @@ class SceneObject:
     @property
     def tar_sit_world(self) -> np.ndarray:
         return self.to_world(self.tar_sit_local)
-
-    @property
-    def tar_climb_world(self) -> np.ndarray:
-        return self.to_world(self.tar_climb_local)
 
 
 @dataclass(frozen=True)
@@ -103,19 +103,16 @@ class SceneInfo:
     target_positions: np.ndarray
     """[K, 3] world positions (`tarpos_K`)."""
     body_ids: np.ndarray
-    """[15] MuJoCo body ids of the character's bodies, `humanoid.BODY_NAMES` order."""
+    """[15] MuJoCo body ids of the character's bodies, `body.BODY_NAMES` order."""
     dof_qpos_adr: np.ndarray
-    """[32] qpos addresses of the character's hinges, `humanoid.DOF_NAMES` order."""
+    """[32] qpos addresses of the character's hinges, `body.DOF_NAMES` order."""
     dof_qvel_adr: np.ndarray
     root_qpos_adr: int
-    """Free joint (humanoid: 7 values) or the puppet's x, y, z, yaw slides (4 values)."""
+    """Address of the character's root joint (`Character.root_joint`)."""
     root_qvel_adr: int
     raster: HeightRaster
     dynamic: tuple[int, ...] = field(default=())
     """Indices of dynamic objects."""
-
-    def object(self, index: int) -> SceneObject:
-        return self.objects[index]
 
 
 def yaw_quat(a: float) -> np.ndarray:
@@ -128,50 +125,38 @@ def _load_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int32)
 
 
-def _asset_attr(asset, *names):
-    for n in names:
-        if hasattr(asset, n):
-            return getattr(asset, n)
-    raise AttributeError(names[0])
-
-
-def compile_scene(task: TaskCfg, sim: SimCfg | None = None, character: str = "humanoid",
-                  assets: dict | None = None, assets_root: str | Path | None = None,
+def compile_scene(task: TaskCfg, character: Character, sim: SimCfg | None = None,
+                  assets: dict[int, AssetInfo] | None = None, assets_root: str | Path | None = None,
                   camera_height: float = 10.0) -> tuple[mujoco.MjModel, SceneInfo]:
     """Compile `task`'s scene with the character; returns (model, SceneInfo).
 
-    `assets` maps object index -> AssetInfo (`scene_builder.assets`); when None, missing
-    assets are built into `assets_root` (default `$DETACH_ASSETS` or ./assets).
+    `assets` maps object index -> AssetInfo; when None they are read from `assets_root`
+    (default `$DETACH_ASSETS` or ./assets), and a missing asset is an AssetError that says
+    how to build it.
     """
-    from detach.envs import humanoid as H
-
     sim = sim or SimCfg()
-    if assets is None and task.scene:
-        from scene_builder.assets import ensure_assets
-
-        # jobs=1: building in this process works from any caller (a process pool needs the
-        # caller to guard its __main__), and warm caches make this a few file reads anyway.
-        assets = ensure_assets(task, assets_root, jobs=1)
+    if assets is None:
+        assets = read_assets(task, assets_root)
     spec = mujoco.MjSpec()
-    spec.modelname = f"{task.name}_{character}"
-    H.configure_options(spec, sim.physics_dt, sim.solver_iterations)
+    spec.modelname = f"{task.name}_{character.name}"
+    configure_options(spec, sim.physics_dt, sim.solver_iterations)
     if sim.sleep:
         spec.option.enableflags |= int(mujoco.mjtEnableBit.mjENBL_SLEEP)
-    H.add_floor(spec, sim.friction)
+    add_floor(spec, sim.friction)
     mu = (sim.friction, 0.005, 0.0001)
 
     meshes: dict[str, tuple[str, list[str]]] = {}
     bodies = []
     for i, obj in enumerate(task.scene):
         asset = assets[i]
-        folder = str(_asset_attr(asset, "folder"))
+        folder = str(asset.folder)
         if folder not in meshes:
             k = len(meshes)
-            v, f = _load_obj(Path(_asset_attr(asset, "mesh_path")))
+            v, f = _load_obj(Path(asset.mesh_path))
             vis = spec.add_mesh(name=f"asset{k}_visual", uservert=v.ravel(), userface=f.ravel())
             vis.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL
             hulls = []
-            for h, hp in enumerate(_asset_attr(asset, "hull_paths")):
+            for h, hp in enumerate(asset.hull_paths):
                 hv, hf = _load_obj(Path(hp))
                 m = spec.add_mesh(name=f"asset{k}_hull{h}", uservert=hv.ravel(), userface=hf.ravel())
                 m.maxhullvert = 64
@@ -179,7 +164,7 @@ def compile_scene(task: TaskCfg, sim: SimCfg | None = None, character: str = "hu
                 hulls.append(m.name)
             meshes[folder] = (vis.name, hulls)
         vis_name, hull_names = meshes[folder]
-        bbox = np.asarray(_asset_attr(asset, "bbox"), dtype=np.float64)
+        bbox = np.asarray(asset.bbox, dtype=np.float64)
         body = spec.worldbody.add_body(name=f"obj{i}_{obj.name}", pos=list(obj.pos3d),
                                        quat=list(yaw_quat(obj.z_rot_angle)))
         if not obj.static:
@@ -204,18 +189,9 @@ def compile_scene(task: TaskCfg, sim: SimCfg | None = None, character: str = "hu
             c.mass = 0.0 if obj.static else 1e-6
         bodies.append((obj, asset, bbox))
 
-    H.add_humanoid(spec.worldbody, spec, puppet=character == "puppet", friction=sim.friction)
-    if character == "puppet":
-        for i, obj in enumerate(task.scene):
-            if not obj.static:
-                e = spec.add_equality(name=f"grasp_obj{i}", type=mujoco.mjtEq.mjEQ_WELD,
-                                      name1="pelvis", name2=f"obj{i}_{obj.name}")
-                e.objtype = mujoco.mjtObj.mjOBJ_BODY
-                e.active = False
-                e.data[:] = 0.0
-                e.data[6] = 1.0   # identity relative rotation until the env sets the real pose
-                e.data[10] = 1.0  # torquescale
-                e.solref = (0.02, 1.0)
+    add_character(character, spec.worldbody, spec, friction=sim.friction)
+    links = character.link_objects(spec, {i: f"obj{i}_{obj.name}" for i, obj in enumerate(task.scene)
+                                          if not obj.static})
     model = spec.compile()
 
     objects = []
@@ -225,21 +201,21 @@ def compile_scene(task: TaskCfg, sim: SimCfg | None = None, character: str = "hu
         if not obj.static:
             jid = model.joint(f"obj{i}_{obj.name}_free").id
             qadr, vadr = int(model.jnt_qposadr[jid]), int(model.jnt_dofadr[jid])
-            if character == "puppet":
-                geq = model.equality(f"grasp_obj{i}").id
+        if i in links:
+            geq = model.equality(links[i]).id
         objects.append(SceneObject(
             index=i, name=obj.name, category=obj.category, static=obj.static, body_id=bid,
             body_name=f"obj{i}_{obj.name}", pos=np.asarray(obj.pos3d, dtype=np.float64),
             z_rot=float(obj.z_rot_angle), bbox=bbox,
-            tar_sit_local=np.asarray(_asset_attr(asset, "tar_sit_pos"), dtype=np.float64),
-            tar_climb_local=np.asarray(_asset_attr(asset, "tar_climb_pos"), dtype=np.float64),
-            mass=float(obj.mass), qpos_adr=qadr, qvel_adr=vadr, grasp_eq=geq))
+            tar_sit_local=np.asarray(asset.tar_sit_pos, dtype=np.float64),
+            tar_climb_local=np.asarray(asset.tar_climb_pos, dtype=np.float64),
+            mass=float(obj.mass), qpos_adr=qadr, qvel_adr=vadr, link_eq=geq))
 
-    body_ids = np.array([model.body(n).id for n in H.BODY_NAMES])
-    jids = [model.joint(n).id for n in H.DOF_NAMES]
-    root_j = model.joint("root_x" if character == "puppet" else "root").id
+    body_ids = np.array([model.body(n).id for n in BODY_NAMES])
+    jids = [model.joint(n).id for n in DOF_NAMES]
+    root_j = model.joint(character.root_joint).id
     info = SceneInfo(
-        task_name=task.name, character=character, objects=tuple(objects),
+        task_name=task.name, character=character.name, objects=tuple(objects),
         trajectories={int(k): np.asarray(v, dtype=np.float64) for k, v in task.trajectories.items()},
         target_positions=np.asarray(task.target_positions, dtype=np.float64).reshape(-1, 3),
         body_ids=body_ids,

@@ -29,6 +29,7 @@ import lz4.frame
 import numpy as np
 import zstandard
 
+from detach.run_contract import EPISODE_TOPIC, METRICS_TOPIC, SCENE_TOPIC
 from server.episode import Episode, episode_from_frames
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -40,7 +41,8 @@ _MSG_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish ti
 _DATA_AT = _REC.size + _MSG_HEAD.size
 """Offset of a message's payload from the start of its record."""
 _EPISODE_RE = re.compile(rb'\{"episode":(-?\d+)')
-BODIES, METRICS, SCENE = "/episode/bodies", "/metrics", "/scene"
+"""`EpisodeFrame.to_json` writes "episode" first: a frame's episode without parsing it."""
+BODIES, METRICS, SCENE = EPISODE_TOPIC, METRICS_TOPIC, SCENE_TOPIC
 
 
 @dataclass

@@ -19,11 +19,11 @@ from typing import Any, Callable
 import numpy as np
 import yaml
 
+from detach.run_contract import (
+    CONFIG_FILE, EVAL_FILE, LIVE_STATES, LOG_FILE, STATUS_FILE, EvalResult, Status, is_eval_file,
+)
 from detach.runs.folder import find_runs
 from server.log_tail import LogTail
-
-LIVE_STATES = ("queued", "running")
-"""States in which a run's files may still grow (a partial log tail is expected then)."""
 
 
 @dataclass
@@ -78,11 +78,8 @@ def _stat_key(path: Path) -> tuple[int, int] | None:
     return st.st_size, st.st_mtime_ns
 
 
-def _parse_status(text: str) -> dict[str, Any]:
-    data = json.loads(text)
-    if not isinstance(data, dict) or not isinstance(data.get("state"), str):
-        raise ValueError("expected an object with a 'state' string")
-    return data
+def _parse_status(text: str) -> Status:
+    return Status.from_json(json.loads(text))
 
 
 def _parse_config(text: str) -> dict[str, Any]:
@@ -98,15 +95,8 @@ def _parse_config(text: str) -> dict[str, Any]:
             "seed": data["seed"]}
 
 
-def _parse_eval(text: str) -> dict[str, Any]:
-    data = json.loads(text)
-    if not isinstance(data, dict):
-        raise ValueError("expected an object")
-    missing = [k for k in ("task", "model", "trials", "subtasks", "lh_success", "sgr")
-               if k not in data]
-    if missing:
-        raise ValueError(f"missing keys {', '.join(missing)}")
-    return data
+def _parse_eval(text: str) -> EvalResult:
+    return EvalResult.from_json(json.loads(text))
 
 
 @dataclass
@@ -123,10 +113,10 @@ class RunReader:
 
     def __init__(self, path: Path) -> None:
         self.path = path
-        self.log = LogTail(path / "log.mcap")
+        self.log = LogTail(path / LOG_FILE)
         self._files: dict[str, _Cached] = {}
         self._series: tuple[int, MetricSeries] | None = None
-        self.evals: dict[str, dict[str, Any]] = {}
+        self.evals: dict[str, EvalResult] = {}
 
     def _read(self, name: str, parse: Callable[[str], Any]) -> _Cached:
         entry = self._files.setdefault(name, _Cached())
@@ -150,19 +140,19 @@ class RunReader:
     def read(self) -> RunInfo:
         info = RunInfo(self.path.name, self.path)
         problems: list[str] = []
-        config = self._read("config.yaml", _parse_config)
+        config = self._read(CONFIG_FILE, _parse_config)
         if config.value:
             info.task, info.model, info.seed = (config.value["task"], config.value["model"],
                                                 config.value["seed"])
         else:
-            problems.append(config.problem or "config.yaml unreadable")
-        status = self._read("status.json", _parse_status)
+            problems.append(config.problem or f"{CONFIG_FILE} unreadable")
+        status = self._read(STATUS_FILE, _parse_status)
         if status.value:
             s = status.value
-            info.state, info.updated, info.error = s["state"], s.get("updated"), s.get("error")
-            info.iteration = s.get("iteration")
+            info.state, info.updated, info.error = s.state, s.updated, s.error
+            info.iteration = s.iteration
         else:
-            problems.append(status.problem or "status.json unreadable")
+            problems.append(status.problem or f"{STATUS_FILE} unreadable")
         problems += self._read_evals(info)
         problems += self._read_log(info)
         info.problems = tuple(problems)
@@ -171,8 +161,7 @@ class RunReader:
     def _read_evals(self, info: RunInfo) -> list[str]:
         problems, versions = [], []
         try:
-            names = sorted(n for n in os.listdir(self.path)
-                           if n.startswith("eval") and n.endswith(".json"))
+            names = sorted(n for n in os.listdir(self.path) if is_eval_file(n))
         except OSError as exc:
             return [f"folder unreadable ({_short(exc)})"]
         self.evals = {}
@@ -183,10 +172,9 @@ class RunReader:
                 self.evals[name] = entry.value
             elif entry.problem and entry.key is not None:
                 problems.append(entry.problem)
-        main = self.evals.get("eval.json")
+        main = self.evals.get(EVAL_FILE)
         if main is not None:
-            rate = main.get("lh_success", {}).get("rate")
-            info.lh_sr = float(rate) if isinstance(rate, (int, float)) else None
+            info.lh_sr = main.lh_success.rate
         info.eval_version = tuple(versions)
         return problems
 
@@ -195,16 +183,16 @@ class RunReader:
         try:
             log.refresh()
         except Exception as exc:  # noqa: BLE001 - a reader bug must not hide the run
-            return [f"log.mcap unreadable ({_short(exc)})"]
+            return [f"{LOG_FILE} unreadable ({_short(exc)})"]
         info.log_version = log.version
         if log.problem:
             return [log.problem]
         if log.size and not info.live and not log.complete:
             read = f"read {len(log.metrics)} iterations"
             if log.pending_bytes:
-                return [f"log.mcap truncated: the last {log.pending_bytes} of {log.size} bytes "
+                return [f"{LOG_FILE} truncated: the last {log.pending_bytes} of {log.size} bytes "
                         f"are a partial record ({read} before the cut)"]
-            return [f"log.mcap truncated: no MCAP footer although the run is {info.state} "
+            return [f"{LOG_FILE} truncated: no MCAP footer although the run is {info.state} "
                     f"({read})"]
         if log.metrics and info.iteration is None:
             info.iteration = int(log.metrics[-1].get("iteration", 0))
@@ -274,7 +262,7 @@ class RunIndex:
         with self._lock:
             return self.readers.get(run_id)
 
-    def evals(self, run_ids: list[str] | None = None) -> list[dict[str, Any]]:
+    def evals(self, run_ids: list[str] | None = None) -> list[EvalResult]:
         """Every parsed eval*.json of the given runs (all runs if None)."""
         with self._lock:
             ids = sorted(self.readers) if run_ids is None else run_ids

@@ -22,10 +22,11 @@ import numpy as np
 import trimesh
 import viser
 
+from detach.skills import skill_class
 from server.episode import Episode
 
-SKILL_COLORS = {"traj": (46, 160, 67), "carry": (255, 127, 14), "climb": (31, 119, 180),
-                "sit": (148, 103, 189)}
+TARGET_COLOR = (220, 40, 40)
+"""Targets of skills this dashboard does not know and whose /scene message names no colour."""
 BODY_COLOR = (222, 170, 120)
 STATIC_COLORS = ((150, 150, 160), (175, 160, 140), (140, 165, 150), (165, 150, 175),
                  (160, 175, 185))
@@ -119,20 +120,34 @@ def _unit_mesh(kind: str) -> trimesh.Trimesh:
 
 # --- furniture meshes -------------------------------------------------------------------------
 def find_mesh(path: str | None, run_dir: Path) -> Path | None:
-    """The asset mesh a /scene object names, also for copied runs/ folders: the path as
-    written, relative to the run folder or the working directory, or by its last three
-    parts (<category>/<model_id>/mesh.obj) under $DETACH_ASSETS or ./assets."""
+    """The asset mesh a /scene object names (`<category>/<model_id>/mesh.obj`; older logs
+    wrote an absolute path, of which only those last three parts count), looked up under the
+    assets roots: $DETACH_ASSETS, ./assets and an assets/ folder beside the runs folder. A
+    name that would leave its root finds nothing: the dashboard opens no other file."""
     if not path:
         return None
-    p = Path(path)
-    candidates = [p] if p.is_absolute() else [run_dir / p, Path.cwd() / p,
-                                             run_dir.parent.parent / p]
-    tail = Path(*p.parts[-3:]) if len(p.parts) >= 3 else None
-    if tail is not None:
-        for root in (os.environ.get("DETACH_ASSETS"), "assets"):
-            if root:
-                candidates.append(Path(root) / tail)
-    return next((c for c in candidates if c.is_file()), None)
+    parts = Path(path).parts[-3:]
+    if len(parts) != 3 or parts[-1] != "mesh.obj" or any(p in ("", ".", "..") for p in parts):
+        return None
+    for root in (os.environ.get("DETACH_ASSETS"), "assets", run_dir.parent.parent / "assets"):
+        if not root:
+            continue
+        base = Path(root).resolve()
+        candidate = (base / Path(*parts)).resolve()
+        if candidate.is_relative_to(base) and candidate.is_file():
+            return candidate
+    return None
+
+
+def target_color(target: dict[str, Any]) -> tuple[int, int, int]:
+    """A /scene target's colour: as written, else its skill's, else `TARGET_COLOR`."""
+    color = target.get("color")
+    if isinstance(color, (list, tuple)) and len(color) == 3:
+        return tuple(int(c) for c in color)  # type: ignore[return-value]
+    try:
+        return skill_class(str(target.get("skill", ""))).color
+    except ValueError:
+        return TARGET_COLOR
 
 
 @lru_cache(maxsize=64)
@@ -257,7 +272,7 @@ class SceneView:
     def _add_target(self, i: int, tgt: dict[str, Any]) -> None:
         self._handles.append(self.server.scene.add_icosphere(
             f"/run/targets/{i}", radius=0.1, subdivisions=2,
-            color=SKILL_COLORS.get(tgt.get("skill", ""), (220, 40, 40)),
+            color=target_color(tgt),
             position=tuple(float(v) for v in tgt.get("pos", (0, 0, 0)))))
 
     def _add_object(self, i: int, obj: dict[str, Any], run_dir: Path) -> None:

@@ -7,11 +7,12 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 
 from detach.eval.tables import TABLES, Table
+from detach.run_contract import EvalResult
 from server.run_index import MetricSeries, RunInfo
 
 PALETTE = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
@@ -123,8 +124,7 @@ def overlay(key: str, series: dict[str, MetricSeries], labels: dict[str, str],
     return Curve(key, x, ys, [labels.get(r, r) for r in runs])
 
 
-def comparison_tables(evals: Sequence[dict[str, Any]]
-                      ) -> tuple[dict[str, Table], dict[str, str]]:
+def comparison_tables(evals: Sequence[EvalResult]) -> tuple[dict[str, Table], dict[str, str]]:
     """The tables `detach-run table` prints (detach.eval.tables.TABLES, same functions);
     a table that cannot be built from these files gives an error text instead."""
     tables, errors = {}, {}

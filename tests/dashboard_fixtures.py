@@ -20,16 +20,23 @@ import numpy as np
 import trimesh
 
 from detach.config import resolve
-from detach.envs.humanoid import BODY_NAMES, build_humanoid_model
+from detach.character import build_character_model
+from detach.character.body import BODY_NAMES
 from detach.eval.report import TrialOutcome, summarize
+from detach.run_contract import EpisodeFrame, SceneMessage
 from detach.runs.folder import RunFolder, atomic_write_json
 from detach.runs.mcap_log import RunLogWriter
 
 ROOT = Path(__file__).resolve().parents[1]
-LH1_PLAN = ["traj", "carry", "climb", "sit"]
-LH3_PLAN = ["traj", "carry", "traj", "climb", "sit"]
+LH1_PLAN = ["follow", "carry", "climb", "sit"]
+LH3_PLAN = ["follow", "carry", "follow", "climb", "sit"]
 GEOM_TYPES = {int(mujoco.mjtGeom.mjGEOM_CAPSULE): "capsule",
               int(mujoco.mjtGeom.mjGEOM_SPHERE): "sphere", int(mujoco.mjtGeom.mjGEOM_BOX): "box"}
+
+
+def mesh_name(path: Path) -> str:
+    """A /scene mesh name: `<category>/<model_id>/mesh.obj` under the assets root."""
+    return "/".join(path.parts[-3:])
 
 
 def write_box_obj(path: Path, size: Sequence[float]) -> Path:
@@ -102,20 +109,20 @@ def make_run(root: Path, model_name: str, seed: int, *, shift: float, now: float
     cfg = resolve(ROOT / "configs/tasks/lh1.yaml", model_name, seed=seed)
     run = RunFolder.create(root, cfg, now=now)
     run.set_state("running", iteration=0)
-    model = build_humanoid_model()
+    model = build_character_model()
     rng = random.Random(seed * 7 + len(model_name))
     objects = [
         {"name": "box", "category": "Box", "static": False, "bbox": [0.6, 0.6, 0.7],
-         "mesh": str(write_box_obj(assets / "Box/box_a/mesh.obj", (0.6, 0.6, 0.7))),
+         "mesh": mesh_name(write_box_obj(assets / "Box/box_a/mesh.obj", (0.6, 0.6, 0.7))),
          "pos": [4.5 - shift, -4.0 + shift, 0.35], "quat": [1, 0, 0, 0]},
         {"name": "platform", "category": "Obstacle", "static": True, "bbox": [5.0, 3.0, 1.0],
-         "mesh": str(write_box_obj(assets / "Obstacle/platform_a/mesh.obj", (5.0, 3.0, 1.0))),
+         "mesh": mesh_name(write_box_obj(assets / "Obstacle/platform_a/mesh.obj", (5.0, 3.0, 1.0))),
          "pos": [0.0, shift, 0.5], "quat": [1, 0, 0, 0]},
         {"name": "chair", "category": "chair", "static": True, "bbox": [0.55, 0.55, 0.92],
-         "mesh": str(assets / "chair/missing/mesh.obj"),  # drawn as its bbox
+         "mesh": "chair/missing/mesh.obj",  # drawn as its bbox
          "pos": [0.0, shift, 1.46], "quat": [0.7071, 0, 0, -0.7071]},
         {"name": "wall", "category": "Obstacle", "static": True, "bbox": [0.3, 5.0, 3.0],
-         "mesh": str(write_box_obj(assets / "Obstacle/wall_a/mesh.obj", (0.3, 5.0, 3.0))),
+         "mesh": mesh_name(write_box_obj(assets / "Obstacle/wall_a/mesh.obj", (0.3, 5.0, 3.0))),
          "pos": [6.0 + shift, -3.25, 1.5], "quat": [1, 0, 0, 0]},
     ]
     scene = {"task": "lh1", "objects": objects,
@@ -129,13 +136,13 @@ def make_run(root: Path, model_name: str, seed: int, *, shift: float, now: float
     start = (9.5, 3.0 - shift)
     pos, quat = walk_frames(model, frames, start, heading)
     with RunLogWriter(run.log_path) as log:
-        log.log_scene(scene)
+        log.log_scene(SceneMessage.from_json(scene))
         for it in range(iterations):
             stage = "skills" if it < iterations // 2 else "joint"
             x = (it + 1) / iterations
             metrics = {"reward/mean": x * (2 + seed) + 0.1 * rng.random(),
                        "loss/surrogate": -0.01 * x, "loss/value": 1.0 / (1 + it),
-                       "loss/amp": 0.5 - 0.2 * x, "success/traj": min(1.0, 1.2 * x),
+                       "loss/amp": 0.5 - 0.2 * x, "success/follow": min(1.0, 1.2 * x),
                        "success/carry": x * x, "fps": 900.0 + 50 * rng.random(),
                        "episode/length": 100 + 10 * it}
             log.log_metrics(it, metrics, stage=stage)
@@ -143,17 +150,16 @@ def make_run(root: Path, model_name: str, seed: int, *, shift: float, now: float
             ahead = pos[f, 0, :2] + 0.45 * np.array([math.cos(heading), math.sin(heading)])
             box = objects[0]["pos"] if f < frames // 2 else [*ahead, 1.0]  # carried in front
             subtask = 0 if f < frames // 2 else 1
-            log.log_frame(episode=0, frame=f, time_s=f / 30.0, bodies=BODY_NAMES,
-                          pos=pos[f], quat=quat[f],
-                          objects=[{"name": "box", "pos": list(box), "quat": [1, 0, 0, 0]}],
-                          subtask=subtask, skill=LH1_PLAN[subtask])
+            log.log_frame(EpisodeFrame(episode=0, frame=f, time=f / 30.0, bodies=list(BODY_NAMES),
+                                       pos=pos[f].tolist(), quat=quat[f].tolist(),
+                                       objects=[{"name": "box", "pos": list(box), "quat": [1, 0, 0, 0]}],
+                                       subtask=subtask, skill=LH1_PLAN[subtask]))
     p = {"mlp": 0.55, "detach": 0.9}.get(model_name, 0.7)
-    meta = dict(task="lh1", trained_on="lh1", model=model_name, seed=seed,
-                checkpoint=f"checkpoints/model_{iterations}.pt")
-    atomic_write_json(run.eval_path, summarize(LH1_PLAN, outcomes(rng, LH1_PLAN, p), **meta))
-    atomic_write_json(run.path / "eval_lh3.json",
-                      summarize(LH3_PLAN, outcomes(rng, LH3_PLAN, p - 0.1),
-                                **{**meta, "task": "lh3"}))
+    for task, plan, rate, path in (("lh1", LH1_PLAN, p, run.eval_path),
+                                   ("lh3", LH3_PLAN, p - 0.1, run.path / "eval_lh3.json")):
+        result = summarize(plan, outcomes(rng, plan, rate), task=task, model=model_name)
+        result.trained_on, result.seed, result.checkpoint = "lh1", seed, f"checkpoints/model_{iterations}.pt"
+        atomic_write_json(path, result.to_json())
     run.set_state(state, iteration=iterations - 1)
     return run
 
@@ -161,7 +167,7 @@ def make_run(root: Path, model_name: str, seed: int, *, shift: float, now: float
 def make_runs(root: Path, models: Sequence[str] = ("mlp", "detach"), *, broken: bool = True,
               iterations: int = 20, frames: int = 60) -> list[RunFolder]:
     """The fixture runs folder `root`: one run per model (+ one broken folder if asked)."""
-    assets = root.parent / f"{root.name}_assets"
+    assets = root.parent / "assets"  # beside the runs folder, where the dashboard looks
     runs = [make_run(root, m, seed=i, shift=1.5 * i, now=1_700_000_000 + 60 * i,
                      assets=assets, iterations=iterations, frames=frames)
             for i, m in enumerate(models)]

@@ -31,11 +31,9 @@ class PointMassEnv(VecEnv):
         reward = torch.exp(-self.pos.norm(dim=-1))
         self.episode_length_buf += 1
         time_outs = self.episode_length_buf >= self.max_episode_length
-        terminal_amp = torch.cat([self.prev, self.pos], dim=-1)
         ids = time_outs.nonzero().flatten()
         self.pos[ids] = torch.randn(len(ids), 2) * 2
         self.prev[ids] = self.pos[ids]
         self.episode_length_buf[ids] = 0
-        extras = {"time_outs": time_outs, "terminal_amp": terminal_amp,
-                  "log": {"success/traj": (reward > 0.8).float().mean()}}
+        extras = {"time_outs": time_outs, "log": {"success/follow": (reward > 0.8).float().mean()}}
         return self.get_observations(), reward, time_outs, extras

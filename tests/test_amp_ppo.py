@@ -9,6 +9,7 @@ import torch
 from rsl_rl.models import MLPModel
 from rsl_rl.runners import OnPolicyRunner
 
+from detach.config_schema import AmpCfg
 from detach.train.discriminator import AmpDiscriminator, ReplayBuffer
 from tests.fakes import PointMassEnv
 
@@ -26,9 +27,8 @@ def train_cfg(critic_class: str = "rsl_rl.models:MLPModel", amp: bool = True) ->
         "obs_groups": {"actor": ["self", "env", "task"], "critic": ["critic", "task"]},
         "algorithm": {"class_name": "detach.train.amp_ppo:AmpPPO", "num_learning_epochs": 2,
                       "num_mini_batches": 2, "learning_rate": 1e-3,
-                      "amp_cfg": {"enabled": amp, "task_reward_weight": 0.5,
-                                  "style_reward_weight": 0.5, "disc_hidden": [32, 32],
-                                  "batch_size": 64, "replay_size": 1000}},
+                      "amp": AmpCfg(enabled=amp, task_reward_weight=0.5, style_reward_weight=0.5,
+                                    disc_hidden=(32, 32), batch_size=64, replay_size=1000)},
         "actor": {"class_name": "rsl_rl.models:MLPModel", "hidden_dims": [32, 32],
                   "distribution_cfg": {"class_name": "rsl_rl.modules:GaussianDistribution",
                                        "init_std": 1.0}},

@@ -43,7 +43,7 @@ def test_lh1_numbers_from_the_paper() -> None:
     assert t.trajectories[0] == ((10, 4), (10, 2), (7, 0), (5, 0), (4, -1))
     assert t.target_positions == ((0.0, -1.8, 0.35),)
     assert t.humanoid.init_pos2d == (10.0, 4.0)
-    assert t.plan == ("traj", "carry", "climb", "sit")
+    assert t.plan == ("follow", "carry", "climb", "sit")
     assert t.target_object == (0, 0, 0, 1)
     assert t.sample_target_from == ("traj_0", "tarpos_0", "scene_0", "scene_1")
     e, r = cfg.env, cfg.rewards
@@ -56,17 +56,16 @@ def test_lh1_numbers_from_the_paper() -> None:
     assert (g.accel_max, g.sharp_turn_prob, g.sharp_turn_angle) == (2.0, 0.02, 1.57)
     assert (r.power_coeff, r.dyn_obj_speed_penalty_coeff, r.dyn_obj_speed_threshold) == (
         0.0005, 1.0, 1.5)
-    assert r.decoupling_mask_strength == 0.3
     assert round(1 / (cfg.sim.physics_dt * cfg.sim.substeps)) == 30
 
 
 def test_lh2_lh3_plans_from_the_paper() -> None:
     lh2, lh3 = (load_task(ROOT / f"configs/tasks/{n}.yaml") for n in ("lh2", "lh3"))
-    assert lh2.plan == ("traj", "carry", "traj", "sit")
+    assert lh2.plan == ("follow", "carry", "follow", "sit")
     assert lh2.scene[8].category == "sofa" and lh2.scene[8].pos3d == (18.0, 17.0, 0.35)
     assert lh2.trajectories[0][0] == (11.5, 0.0) and lh2.trajectories[0][-1] == (11.5, 8.0)
     assert lh2.trajectories[1][0] == (14.0, 11.0) and lh2.trajectories[1][-1] == (18.0, 14.4)
-    assert lh3.plan == ("traj", "carry", "traj", "climb", "sit")
+    assert lh3.plan == ("follow", "carry", "follow", "climb", "sit")
     assert lh3.target_object == (0, 0, 0, 1, 2)
     assert lh3.sample_target_from == ("traj_0", "tarpos_0", "traj_1", "scene_1", "scene_2")
     assert len(lh3.scene) == 11 and lh3.scene[1].pos3d == (15.0, 18.2, 0.43)
@@ -83,14 +82,16 @@ def test_ablations_change_only_their_switch() -> None:
 
 
 def test_overrides_set_add_and_index() -> None:
-    cfg = resolve(ROOT / "configs/tasks/lh1.yaml", "mlp", [
+    cfg = resolve(ROOT / "configs/tasks/lh1.yaml", "detach", [
         "env.character=puppet", "sim.num_envs=4", "scene[0].pos3d=[1, 2, 0.35]",
-        "scene.1.z_rot_angle=0.5", "+rewards.terms.traj/bonus=0.25",
-        "train.amp.disc_hidden=[64, 32]", "model.use_env_encoder=false"])
+        "scene.1.z_rot_angle=0.5", "+rewards.terms.follow/bonus=0.25",
+        "train.amp.disc_hidden=[64, 32]", "model.use_env_encoder=false",
+        "model.self_encoder.predictor_hidden=32"])
     assert cfg.env.character == "puppet" and cfg.sim.num_envs == 4
     assert cfg.task.scene[0].pos3d == (1.0, 2.0, 0.35) and cfg.task.scene[1].z_rot_angle == 0.5
-    assert cfg.rewards.terms["traj/bonus"] == 0.25
+    assert cfg.rewards.terms["follow/bonus"] == 0.25
     assert cfg.train.amp.disc_hidden == (64, 32) and cfg.model.use_env_encoder is False
+    assert cfg.model.self_encoder.predictor_hidden == 32  # a key of the kind's own config class
 
 
 def test_dry_run_prints_config_and_folder(capsys: pytest.CaptureFixture[str]) -> None:
@@ -147,16 +148,26 @@ BROKEN: list[tuple[str, dict[str, str], list[str], str]] = [
     ("bad_source_word", {"t.yaml": GOOD_TASK.replace("tarpos_0", "target_0")}, [],
      "expected traj_K, tarpos_K or scene_K, found 'target_0'"),
     ("bad_skill", {"t.yaml": GOOD_TASK.replace("[traj, carry, sit]", "[traj, carry, sitt]")},
-     [], "plan[2]: expected one of 'traj', 'carry', 'climb', 'sit', found str 'sitt' "
-         "(did you mean 'sit'?)"),
+     [], "t.yaml:8: plan[2]: unknown skill 'sitt' (did you mean 'sit'?); available: follow, carry, "
+         "climb, sit"),
+    ("skill_source", {"t.yaml": GOOD_TASK.replace("scene_1]", "traj_0]")},
+     [], "t.yaml:10: sample_target_from[2]: 'sit' takes its target from scene_K, tarpos_K, found traj_0"),
     ("bad_object_index", {"t.yaml": GOOD_TASK.replace("[0, 0, 1]", "[0, 0, 5]")}, [],
      "target_object[2]: object index 5 for 'sit' does not exist (scene has 2 objects)"),
     ("carry_static", {"t.yaml": GOOD_TASK.replace("[0, 0, 1]\n", "[0, 1, 1]\n")}, [],
      "'carry' needs a dynamic object, but scene[1] (chair) is static"),
     ("missing_required", {"t.yaml": GOOD_TASK.replace("model_id: c, ", "")}, [],
      "scene[1]: missing required key 'model_id' (SceneObjectCfg)"),
-    ("bad_literal", {"t.yaml": GOOD_TASK + "env: {character: robot}\n"}, [],
-     "env.character: expected one of 'humanoid', 'puppet', found str 'robot'"),
+    ("bad_literal", {"t.yaml": GOOD_TASK + "env: {iet: sometimes}\n"}, [],
+     "env.iet: expected one of 'none', 'last_subtask', 'all', found str 'sometimes'"),
+    ("bad_character", {"t.yaml": GOOD_TASK + "env: {character: robot}\n"}, [],
+     "t.yaml:11: env.character: unknown character 'robot'; available: humanoid, puppet"),
+    ("bad_backend", {"t.yaml": GOOD_TASK}, ["sim.backend=gpu"],
+     "<command line>: sim.backend: unknown physics backend 'gpu'; available: mujoco_batch"),
+    ("bad_reward_term", {"t.yaml": GOOD_TASK}, ["+rewards.terms.sit/sea=1"],
+     "rewards.terms: unknown term 'sit/sea'"),
+    ("bad_model_kind", {"t.yaml": GOOD_TASK}, ["model.kind=transformer"],
+     "model.kind: unknown model kind 'transformer'; available: cml, detach, mlp, tokenhsi"),
     ("unknown_top_key", {"t.yaml": GOOD_TASK + "scenes: []\n"}, [],
      "scenes: unknown key (did you mean 'scene'?)"),
     ("model_in_task", {"t.yaml": GOOD_TASK + "model: {kind: mlp}\n"}, [],
@@ -183,10 +194,12 @@ BROKEN: list[tuple[str, dict[str, str], list[str], str]] = [
      "no item 5 (the list has 2 items)"),
     ("history_frames_negative", {"t.yaml": GOOD_TASK}, ["model.history_frames=-1"],
      "model.history_frames: expected >= 0 (0 = every frame), found -1"),
-    ("history_frames_not_mlp", {"t.yaml": GOOD_TASK}, ["model.kind=detach", "model.history_frames=1"],
-     "model.history_frames: only the mlp kind reads it; 'detach' uses every frame"),
-    ("shared_trunk_mlp", {"t.yaml": GOOD_TASK}, ["model.kind=mlp", "model.shared_trunk=true"],
-     "model.shared_trunk: the mlp kind has no trunk to share"),
+    ("history_frames_not_mlp", {"t.yaml": GOOD_TASK}, ["model.kind=detach"],
+     "model.history_frames: unknown key; valid keys: kind, adapter_units"),
+    ("negative_history_frames", {"t.yaml": GOOD_TASK}, ["model.history_frames=-1"],
+     "model.history_frames: expected >= 0 (0 = every frame), found -1"),
+    ("shared_trunk_mlp", {"t.yaml": GOOD_TASK}, ["model.shared_trunk=true"],
+     "model.shared_trunk: override of unknown key (use +model.shared_trunk=... to add a new key)"),
     ("override_no_equals", {"t.yaml": GOOD_TASK}, ["sim.num_envs"],
      "bad override 'sim.num_envs': expected key.path=value"),
     ("missing_task_file", {}, [], "t.yaml: task file not found"),
@@ -216,12 +229,31 @@ def test_unknown_model_suggests_closest(capsys: pytest.CaptureFixture[str]) -> N
 
 
 def test_action_std_defaults_to_the_characters_and_an_override_wins() -> None:
+    from detach.train.checks import complete_run_config
+
     follow = ROOT / "configs/tasks/follow.yaml"
-    assert resolve(follow, "detach").model.init_noise_std == 0.1
-    assert resolve(follow, "mlp", ["env.character=puppet"]).model.init_noise_std == 1.0
-    assert resolve(follow, "mlp", ["env.character=puppet", "model.init_noise_std=0.3"]
-                   ).model.init_noise_std == 0.3
-    assert "init_noise_std: 0.1" in dump(resolve(follow, "tokenhsi"))  # config.yaml has the number
+    assert resolve(follow, "detach").model.init_noise_std is None  # null: the character's
+    assert complete_run_config(resolve(follow, "detach")).model.init_noise_std == 0.1
+    assert complete_run_config(resolve(follow, "mlp", ["env.character=puppet"])).model.init_noise_std == 1.0
+    assert complete_run_config(resolve(follow, "mlp", ["env.character=puppet", "model.init_noise_std=0.3"])
+                               ).model.init_noise_std == 0.3
+    dumped = dump(complete_run_config(resolve(follow, "tokenhsi")))
+    assert "init_noise_std: 0.1" in dumped  # config.yaml has the number
+
+
+def test_model_config_is_typed_by_kind_and_old_run_configs_still_load(tmp_path: Path) -> None:
+    from detach.models.detach_net import DetachCfg
+    from detach.models.mlp import MLPCfg
+
+    cfg = resolve(ROOT / "configs/tasks/follow.yaml", "detach")
+    assert type(cfg.model) is DetachCfg and cfg.model.shared_trunk is True
+    assert type(resolve(ROOT / "configs/tasks/follow.yaml", "mlp").model) is MLPCfg
+    # A config.yaml written before the model section was split (one class with every field,
+    # and rewards.decoupling_mask_strength) loads as the run's kind.
+    text = dump(cfg).replace("  kind: detach\n", "  kind: detach\n  history_frames: 0\n  gru_hidden: 256\n")
+    text = text.replace("  terms:", "  decoupling_mask_strength: 0.3\n  terms:", 1)
+    (tmp_path / "config.yaml").write_text(text)
+    assert load_run_config(tmp_path / "config.yaml") == cfg
 
 
 def test_model_yaml_by_path_and_unknown_section(tmp_path: Path) -> None:

@@ -14,8 +14,10 @@ import mujoco
 import numpy as np
 import pytest
 
-from detach.envs.humanoid import BODY_NAMES, build_humanoid_model
+from detach.character import build_character_model
+from detach.character.body import BODY_NAMES
 from detach.eval.tables import TABLES
+from detach.run_contract import SCENE_TOPIC, EpisodeFrame
 from detach.runs.mcap_log import RunLogWriter, read_episodes, read_metrics
 from server import log_tail
 from server.cli import build_parser, main
@@ -31,16 +33,16 @@ BODIES = ["pelvis", "torso"]
 
 
 def _frame(log: RunLogWriter, episode: int, frame: int) -> None:
-    log.log_frame(episode=episode, frame=frame, time_s=frame / 30, bodies=BODIES,
-                  pos=[[0.1 * frame, 0, 0.9], [0.1 * frame, 0, 1.2]],
-                  quat=[[1, 0, 0, 0], [1, 0, 0, 0]],
-                  objects=[{"name": "box", "pos": [episode, frame, 0.35], "quat": [1, 0, 0, 0]}],
-                  subtask=frame // 10, skill="traj")
+    log.log_frame(EpisodeFrame(episode=episode, frame=frame, time=frame / 30, bodies=BODIES,
+                               pos=[[0.1 * frame, 0, 0.9], [0.1 * frame, 0, 1.2]],
+                               quat=[[1, 0, 0, 0], [1, 0, 0, 0]],
+                               objects=[{"name": "box", "pos": [episode, frame, 0.35], "quat": [1, 0, 0, 0]}],
+                               subtask=frame // 10, skill="follow"))
 
 
 def _write_log(path: Path, episodes: int = 3, frames: int = 25, flush_every: int = 7) -> None:
     with RunLogWriter(path, flush_every=flush_every) as log:
-        log.log_scene({"objects": [], "trajectories": {}, "targets": []})
+        log.write(SCENE_TOPIC, {"objects": [], "trajectories": {}, "targets": []}, 0)
         it = 0
         for ep in range(episodes):
             for f in range(frames):
@@ -261,7 +263,7 @@ def test_metrics_appended_while_reading_reach_the_series(tmp_path: Path) -> None
     log = RunLogWriter(run / "log.mcap")
     seen = []
     for it in range(8):
-        log.log_metrics(it, {"reward/mean": float(it), **({"success/traj": 0.5} if it % 2 else {})})
+        log.log_metrics(it, {"reward/mean": float(it), **({"success/follow": 0.5} if it % 2 else {})})
         index.refresh()
         seen.append(len(index.reader(run.name).series().iterations))
     log.log_metrics(3, {"reward/mean": 30.0})  # a resumed run repeats an iteration
@@ -269,7 +271,7 @@ def test_metrics_appended_while_reading_reach_the_series(tmp_path: Path) -> None
     series = index.reader(run.name).series()
     assert seen == list(range(1, 9))
     assert series.columns["reward/mean"][3] == 30.0
-    assert np.isnan(series.columns["success/traj"][0]) and series.columns["success/traj"][1] == 0.5
+    assert np.isnan(series.columns["success/follow"][0]) and series.columns["success/follow"][1] == 0.5
     log.close()
 
 
@@ -310,7 +312,7 @@ def test_curves_group_by_prefix_and_overlay_on_the_union_of_iterations(runs: Pat
 
 # --- 3D geometry and replay clock -----------------------------------------------------------
 def test_batched_primitives_sit_where_mujoco_puts_the_geoms() -> None:
-    model = build_humanoid_model()
+    model = build_character_model()
     data = mujoco.MjData(model)
     rng = np.random.default_rng(0)
     data.qpos[7:] = rng.uniform(-0.5, 0.5, model.nq - 7)
@@ -410,7 +412,7 @@ def test_a_live_run_streams_its_newest_episode(tmp_path: Path) -> None:
     status = json.loads((run / "status.json").read_text())
     (run / "status.json").write_text(json.dumps({**status, "state": "running"}))
     log = RunLogWriter(run / "log.mcap", flush_every=5)
-    log.log_scene(scene)
+    log.write(SCENE_TOPIC, scene, 0)
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     try:
         d = Dashboard(server, tmp_path / "runs")
@@ -446,14 +448,13 @@ def test_garbage_scene_and_frames_become_notes_not_crashes(tmp_path: Path) -> No
     make_runs(tmp_path / "runs", models=("mlp",), broken=False, iterations=2, frames=5)
     run = next((tmp_path / "runs").iterdir())
     with RunLogWriter(run / "log.mcap") as log:
-        log.log_scene({"objects": [{"name": "ok", "pos": [0, 0, 0.5], "bbox": [1, 1, 1]},
-                                   "not an object", {"pos": "xyz"}],
-                       "trajectories": {"0": [[0, 0], "bad"]}, "targets": 5,
-                       "bodies": ["a", "b"], "body_geoms": [{"type": "capsule", "size": "x"}]})
-        log.log_frame(0, 0, 0.0, ["a", "b"], [[0, 0, 1], [0, 0, 1]],
-                      [[1, 0, 0, 0], [1, 0, 0, 0]])
-        log.log_frame(0, 1, 0.1, ["a", "b"], [[0, 0, float("nan")], [0, 0, 1]],
-                      [[1, 0, 0, 0], [1, 0, 0, 0]])
+        log.write(SCENE_TOPIC, {"objects": [{"name": "ok", "pos": [0, 0, 0.5], "bbox": [1, 1, 1]},
+                                            "not an object", {"pos": "xyz"}],
+                                "trajectories": {"0": [[0, 0], "bad"]}, "targets": 5,
+                                "bodies": ["a", "b"], "body_geoms": [{"type": "capsule", "size": "x"}]}, 0)
+        log.log_frame(EpisodeFrame(0, 0, 0.0, ["a", "b"], [[0, 0, 1], [0, 0, 1]], [[1, 0, 0, 0], [1, 0, 0, 0]]))
+        log.log_frame(EpisodeFrame(0, 1, 0.1, ["a", "b"], [[0, 0, float("nan")], [0, 0, 1]],
+                                   [[1, 0, 0, 0], [1, 0, 0, 0]]))
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     try:
         d = Dashboard(server, tmp_path / "runs")

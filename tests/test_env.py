@@ -11,13 +11,17 @@ import torch
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
+from types import SimpleNamespace
+
 from detach.config import resolve
 from detach.config_schema import HumanoidCfg, TaskCfg
-from detach.envs import success as S
 from detach.envs.lh_env import make_env
-from detach.envs.oracle import PuppetOracle, evaluate, random_policy
-from detach.envs.plan import compile_plan
+from detach.envs.oracle import Oracle, random_policy
 from detach.envs.rewards import RewardManager
+from detach.eval.episodes import run_evaluation
+from detach.skills import PlanError, skill_index
+from detach.skills.climb import climb_distance
+from detach.skills.plan import compile_plan
 
 TASKS = Path(__file__).resolve().parents[1] / "configs" / "tasks"
 torch.set_num_threads(1)
@@ -66,7 +70,7 @@ def _two_point_plan_cfg(**env_kw):
     base = cfg_of("follow", "env.character=puppet")
     task = TaskCfg(name="hold_test", trajectories={0: ((0.0, 0.0),), 1: ((0.0, 0.0), (8.0, 0.0))},
                    humanoid=HumanoidCfg(init_pos2d=(0.0, 0.0), init_rot_randomize=False),
-                   plan=("traj", "traj"), target_object=(0, 0), sample_target_from=("traj_0", "traj_1"))
+                   plan=("follow", "traj"), target_object=(0, 0), sample_target_from=("traj_0", "traj_1"))
     return dataclasses.replace(base, task=task, env=dataclasses.replace(base.env, **env_kw))
 
 
@@ -77,17 +81,17 @@ def test_transition_fires_exactly_after_hold_time(eval_mode, hold):
     still = torch.zeros(2, env.num_actions)  # the puppet stands on trajectory 0's only point
     for k in range(1, hold):
         env.step(still)
-        assert env.subtask.tolist() == [0, 0] and env.hold.tolist() == [k, k]
+        assert env.tracker.subtask.tolist() == [0, 0] and env.tracker.hold.tolist() == [k, k]
     _, _, dones, _ = env.step(still)
-    assert env.subtask.tolist() == [1, 1] and not dones.any()
-    prog = env.progress()
+    assert env.tracker.subtask.tolist() == [1, 1] and not dones.any()
+    prog = env.tracker.progress()
     assert prog["end"][:, 0].tolist() == [hold, hold] and prog["start"][:, 1].tolist() == [hold, hold]
     assert prog["done"][:, 0].all() and not prog["done"][:, 1].any()
 
 
 def test_iet_and_time_out():
     env = make_env(dataclasses.replace(_two_point_plan_cfg(), task=dataclasses.replace(
-        _two_point_plan_cfg().task, plan=("traj",), target_object=(0,), sample_target_from=("traj_0",))),
+        _two_point_plan_cfg().task, plan=("follow",), target_object=(0,), sample_target_from=("traj_0",))),
         num_envs=1, eval_mode=True)
     for _ in range(19):
         _, _, dones, _ = env.step(torch.zeros(1, env.num_actions))
@@ -114,13 +118,13 @@ def test_fall_terminates_and_resets():
     i = int(dones.nonzero()[0])
     assert prog["fell"][i] and not extras["time_outs"][i]
     assert env.episode_length_buf[i] == 0
-    assert env._last_state.root_pos[i, 2] == pytest.approx(0.94, abs=1e-3)
+    assert env.state.root_pos[i, 2] == pytest.approx(0.94, abs=1e-3)
 
 
 def test_traj_deviation_terminates():
     env = make_env(_two_point_plan_cfg(), num_envs=1)
-    env.subtask[:] = 1  # trajectory 1 runs to x = 8 m at 1.45 m/s; standing still falls behind
-    env._start_subtask(torch.tensor([0]), torch.zeros(1, 2))
+    env.tracker.subtask[:] = 1  # trajectory 1 runs to x = 8 m at 1.45 m/s; standing still falls behind
+    env.tracker.start(torch.tensor([0]), env.steps, torch.zeros(1, 2))
     for t in range(200):
         _, _, dones, extras = env.step(torch.zeros(1, env.num_actions))
         if dones.any():
@@ -131,34 +135,47 @@ def test_traj_deviation_terminates():
 
 def test_plan_errors_are_one_line():
     bad = TaskCfg(name="t", plan=("carry",), target_object=(0,), sample_target_from=("scene_0",))
-    with pytest.raises(ValueError, match="scene_K names the box itself"):
+    with pytest.raises(PlanError, match="scene_K names the box itself") as err:
         compile_plan(dataclasses.replace(bad, scene=cfg_of("carry").task.scene))
+    assert err.value.key == ("sample_target_from", 0)
+    with pytest.raises(PlanError, match="unknown skill 'jump'; available: follow, carry, climb, sit"):
+        compile_plan(dataclasses.replace(bad, plan=("jump",)))
     with pytest.raises(ValueError, match="unknown term"):
         RewardManager(dataclasses.replace(cfg_of("follow").rewards, terms={"sit/sea": 1.0}))
 
 
 def test_success_scores():
-    skills = torch.tensor([S.TRAJ, S.CARRY, S.SIT])
-    done = torch.tensor([[True, False, False], [True, True, True]])
-    grasped = torch.tensor([[False, True, False], [False, True, False]])
-    on_path = torch.tensor([[95, 0, 0], [50, 0, 0]])
-    steps = torch.tensor([[100, 0, 0], [100, 0, 0]])
-    sc = S.subtask_scores(skills, done, grasped, on_path, steps, 0.9)
-    assert sc.tolist() == [[1.0, 0.5, 0.0], [0.0, 1.0, 1.0]]
-    assert S.lh_success(sc).tolist() == [False, False]
+    env = make_env(cfg_of("lh2", "env.character=puppet"), num_envs=2)  # follow, carry, follow, sit
+    t = env.tracker
+    t.done[:] = torch.tensor([[True, False, True, False], [True, True, False, True]])
+    t.stats["grasped"][:] = torch.tensor([[False, True, False, False], [False, True, False, False]])
+    t.stats["on_path"][:] = torch.tensor([[95, 0, 95, 0], [50, 0, 0, 0]])
+    t.stats["path_steps"][:] = torch.tensor([[100, 0, 100, 0], [100, 0, 0, 0]])
+    prog = env.tracker.progress()
+    assert prog["score"].tolist() == [[1.0, 0.5, 1.0, 0.0], [0.0, 1.0, 0.0, 1.0]]
+    assert prog["lh_success"].tolist() == [False, False]
     root = torch.tensor([[0.0, 0.0, 2.0], [0.0, 0.0, 1.0]])
     tgt = torch.tensor([[0.1, 0.0, 1.6], [0.0, 0.0, 1.6]])
-    assert S.climb_distance(root, tgt).tolist() == pytest.approx([0.1, 0.6])
+    assert climb_distance(root, tgt).tolist() == pytest.approx([0.1, 0.6])
 
 
 @pytest.mark.parametrize("task", ["lh1", "lh2", "lh3"])
 def test_oracle_succeeds_and_random_fails(task):
-    env = make_env(cfg_of(task, "env.character=puppet"), num_envs=4, eval_mode=True)
-    res = evaluate(env, PuppetOracle(env), trials=4)
-    assert res["lh_success"] == 1.0, res["subtask_success"]
-    assert res["exec_time"] < 40.0
-    rnd = evaluate(env, random_policy(env), trials=8)
-    assert rnd["lh_success"] == 0.0
+    cfg = cfg_of(task, "env.character=puppet")
+    env = make_env(cfg, num_envs=4, eval_mode=True)
+    oracle = Oracle(env)
+    res = run_evaluation(env, lambda _obs: oracle(), trials=4, cfg=cfg, progress=False)
+    assert res.lh_success.rate == 1.0, res.subtasks
+    assert res.mean_execution_time < 40.0
+    env = make_env(cfg, num_envs=4, eval_mode=True)
+    rnd = run_evaluation(env, random_policy(env), trials=8, cfg=cfg, progress=False)
+    assert rnd.lh_success.rate == 0.0
+
+
+def test_oracle_needs_a_scriptable_character():
+    env = make_env(cfg_of("follow"), num_envs=1)
+    with pytest.raises(ValueError, match="set env.character to one of puppet"):
+        Oracle(env)
 
 
 def test_preview_cli_prints_the_oracle_timeline(capsys):
@@ -170,23 +187,24 @@ def test_preview_cli_prints_the_oracle_timeline(capsys):
 
 
 def test_follow_rewards_ask_to_keep_up_and_stop_at_the_end():
-    from detach.envs.rewards import RewardContext, traj_position, traj_precision, traj_velocity
+    from detach.skills.follow import position, precision, velocity
 
     def ctx(root_xy, root_v, ref_xy, ref_v):
+        """The part of a SkillContext the follow terms read."""
         z = torch.zeros(len(root_xy))
         t = lambda rows: torch.tensor(rows, dtype=torch.float32)  # noqa: E731
         pos = torch.cat((t(root_xy), z[:, None] + 0.9), dim=-1)
         lin = torch.cat((t(root_v), z[:, None]), dim=-1)
-        return RewardContext(skill=z.long(), root_pos=pos, root_lin=lin, target=pos, obj_pos=pos,
-                             obj_rest_z=z, ref_xy=t(ref_xy), ref_vel=t(ref_v), dist=z,
-                             joint_power=z, dyn_speed=torch.zeros(len(z), 0))
+        state = SimpleNamespace(root_pos=pos, body_lin=lin[:, None])
+        return SimpleNamespace(state=state, ref_xy=t(ref_xy), ref_vel=t(ref_v), skill=z.long())
 
     # on the reference at its velocity; 0.5 m behind at its velocity; 0.5 m behind catching up
     c = ctx([[0, 0], [-0.5, 0], [-0.5, 0]], [[1.45, 0], [1.45, 0], [2.0, 0]],
             [[0, 0]] * 3, [[1.45, 0]] * 3)
-    vel, prec, pos = traj_velocity(c), traj_precision(c), traj_position(c)
+    vel, prec, pos = velocity(c), precision(c), position(c)
     assert vel[0] == pytest.approx(1.0) and vel[2] == pytest.approx(1.0) and vel[1] < 0.9
     assert prec[0] == pytest.approx(1.0) and prec[1] < 0.01 and pos[1] > 0.6
     # the reference has stopped at the end point: standing on it pays, overshooting does not
     c = ctx([[0, 0], [0.3, 0]], [[0, 0], [1.0, 0]], [[0, 0]] * 2, [[0, 0]] * 2)
-    assert traj_velocity(c)[0] == pytest.approx(1.0) and traj_velocity(c)[1] < 0.3
+    assert velocity(c)[0] == pytest.approx(1.0) and velocity(c)[1] < 0.3
+    assert skill_index("traj") == skill_index("follow") == 0

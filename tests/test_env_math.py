@@ -8,10 +8,10 @@ import torch
 
 from detach.config_schema import TrajectoryGenCfg
 from detach.envs import observations as O
-from detach.envs.torch_math import (
+from detach.torch_math import (
     heading_matrix, quat_from_yaw, quat_mul, quat_rotate, quat_to_tan_norm, rotate_yaw_inverse, yaw_of,
 )
-from detach.envs.trajectories import distance_to_polyline, random_trajectories, sample_at, time_polyline
+from detach.skills.trajectories import distance_to_polyline, random_trajectories, sample_at, time_polyline
 
 
 def _unit_quats(n: int, gen: torch.Generator) -> torch.Tensor:

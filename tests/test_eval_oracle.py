@@ -10,7 +10,7 @@ import torch
 
 from detach.config import resolve
 from detach.envs.lh_env import make_env
-from detach.envs.oracle import PuppetOracle, random_policy
+from detach.envs.oracle import Oracle, random_policy
 from detach.eval.episodes import run_evaluation
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -21,12 +21,12 @@ def test_oracle_through_the_evaluator(task: str) -> None:
     torch.set_num_threads(1)
     cfg = resolve(ROOT / f"configs/tasks/{task}.yaml", "mlp", ["env.character=puppet"], seed=1)
     env = make_env(cfg, num_envs=6, eval_mode=True, verbose=False)
-    oracle = PuppetOracle(env)
+    oracle = Oracle(env)
     result = run_evaluation(env, lambda _obs: oracle(), trials=6, cfg=cfg, progress=False)
-    assert result["trials"] == 6
-    assert result["lh_success"]["rate"] >= 0.95, result
-    assert all(s["rate"] == 1.0 for s in result["subtasks"])
-    assert 5.0 < result["mean_execution_time"] < 40.0
+    assert result.trials == 6
+    assert result.lh_success.rate >= 0.95, result
+    assert all(s.rate == 1.0 for s in result.subtasks)
+    assert 5.0 < result.mean_execution_time < 40.0
 
 
 def test_random_policy_through_the_evaluator() -> None:
@@ -36,4 +36,4 @@ def test_random_policy_through_the_evaluator() -> None:
     env = make_env(cfg, num_envs=6, eval_mode=True, verbose=False)
     policy = random_policy(env, torch.Generator().manual_seed(0))
     result = run_evaluation(env, lambda obs: policy(obs), trials=6, cfg=cfg, progress=False)
-    assert result["lh_success"]["rate"] == 0.0
+    assert result.lh_success.rate == 0.0

@@ -8,32 +8,35 @@ import pytest
 
 from detach.eval.report import TrialOutcome, summarize
 from detach.eval.tables import ablation_table, generalization_table, skills_table
+from detach.run_contract import EvalResult
 
 
 def _evals(task: str, model: str, plan: list[str], scores: list[list[float]],
-           completed: list[bool], trained_on: str = "lh1") -> dict:
+           completed: list[bool], trained_on: str = "lh1") -> EvalResult:
     outcomes = [TrialOutcome(s, [10.0] * len(s), c, 40.0 if c else 60.0)
                 for s, c in zip(scores, completed)]
-    return summarize(plan, outcomes, task=task, model=model, seed=0, trained_on=trained_on)
+    result = summarize(plan, outcomes, task=task, model=model)
+    result.seed, result.trained_on = 0, trained_on
+    return EvalResult.from_json(result.to_json())  # as a table reads it back from eval.json
 
 
-LH1 = ["traj", "carry", "climb", "sit"]
-LH2 = ["traj", "carry", "traj", "sit"]
+LH1 = ["follow", "carry", "climb", "sit"]
+LH2 = ["traj", "carry", "traj", "sit"]  # the name older eval.json files used for follow
 
 
 def test_summary_rates_times_and_partial_carry() -> None:
     e = _evals("lh1", "detach", LH1, [[1, 1, 1, 1], [1, 0.5, 0, 0], [1, 0, 0, 0],
                                       [0, 0, 0, 0]], [True, False, False, False])
-    assert [s["rate"] for s in e["subtasks"]] == [0.75, 0.375, 0.25, 0.25]
-    assert e["lh_success"]["rate"] == 0.25 and e["trials"] == 4
-    assert e["mean_execution_time"] == pytest.approx(55.0)
-    assert e["subtasks"][0]["ci"][0] < 0.75 < e["subtasks"][0]["ci"][1]
-    assert e["sgr"] == pytest.approx((0.25 + 0.25) / (0.75 + 0.375))
+    assert [s.rate for s in e.subtasks] == [0.75, 0.375, 0.25, 0.25]
+    assert e.lh_success.rate == 0.25 and e.trials == 4
+    assert e.mean_execution_time == pytest.approx(55.0)
+    assert e.subtasks[0].ci[0] < 0.75 < e.subtasks[0].ci[1]
+    assert e.sgr == pytest.approx((0.25 + 0.25) / (0.75 + 0.375))
     nan_times = summarize(LH1, [TrialOutcome([0, 0, 0, 0], [math.nan] * 4)])
-    assert nan_times["subtasks"][2]["mean_time"] is None
+    assert nan_times.subtasks[2].mean_time is None
 
 
-def _fixture() -> list[dict]:
+def _fixture() -> list[EvalResult]:
     ok, bad = [1, 1, 1, 1], [1, 1, 0, 0]
     return [
         _evals("lh1", "tokenhsi", LH1, [ok, bad, bad, bad], [True, False, False, False]),

@@ -6,13 +6,14 @@ import mujoco
 import numpy as np
 import torch
 
-from detach.envs import humanoid as H
-from detach.envs import puppet as P
-from detach.envs.backend import MujocoBatchBackend
+from detach.character import body as H
+from detach.character import build_character_model
+from detach.character import puppet as P
+from detach.sim.mujoco_batch import MujocoBatchBackend
 
 
 def test_humanoid_counts_and_names():
-    m = H.build_humanoid_model("humanoid")
+    m = build_character_model("humanoid")
     bodies = [m.body(i).name for i in range(1, m.nbody)]
     assert bodies == list(H.BODY_NAMES) and len(bodies) == 15
     hinges = [m.joint(i).name for i in range(m.njnt) if m.jnt_type[i] == mujoco.mjtJoint.mjJNT_HINGE]
@@ -32,7 +33,7 @@ def test_humanoid_counts_and_names():
 
 
 def test_humanoid_stands_on_default_pose():
-    m = H.build_humanoid_model("humanoid")
+    m = build_character_model("humanoid")
     d = mujoco.MjData(m)
     mujoco.mj_forward(m, d)
     assert abs(d.xpos[1, 2] - H.START_HEIGHT) < 1e-9
@@ -46,7 +47,7 @@ def test_humanoid_stands_on_default_pose():
 
 
 def test_puppet_root_follows_commands():
-    m = H.build_humanoid_model("puppet")
+    m = build_character_model("puppet")
     assert m.nu == P.NUM_ACTIONS - 1  # grasp is not an actuator
     assert [m.joint(i).name for i in range(4)] == list(P.ROOT_JOINTS)
     be = MujocoBatchBackend(m, 2, nthread=1)
@@ -69,7 +70,7 @@ def test_puppet_root_follows_commands():
 
 
 def test_backend_matches_plain_mujoco():
-    m = H.build_humanoid_model("humanoid")
+    m = build_character_model("humanoid")
     be = MujocoBatchBackend(m, 3, nthread=2)
     rng = np.random.default_rng(0)
     ctrl = torch.as_tensor(rng.uniform(-0.3, 0.3, (3, m.nu)), dtype=torch.float32)

@@ -14,22 +14,26 @@ from rsl_rl.utils import resolve_class
 from tensordict import TensorDict
 
 from detach.config_schema import ModelCfg
+from detach.config_validate import to_plain
 from detach.envs.obs_spec import EXAMPLE_SPEC, ObsSpec
 from detach.models import DEFAULT_OBS_GROUPS, DetachModel, build_actor_critic, rsl_rl_model_cfgs
 from detach.models import losses as L
+from detach.models.cml import CMLCfg
+from detach.models.detach_net import DetachCfg
 from detach.models.fusion import MoEFusion
-from detach.models.layout import model_cfg_from_dict
+from detach.models.mlp import MLPCfg
+from detach.models.tokenhsi import TokenHSICfg
 
 SPEC = EXAMPLE_SPEC
 CML_OBJECTIVES = ("task", "disc_upper", "disc_lower")
 KINDS: dict[str, ModelCfg] = {
-    "detach": ModelCfg(kind="detach"),
-    "detach_shared": ModelCfg(kind="detach", shared_trunk=True),
-    "ablation_a1": ModelCfg(kind="detach", use_env_encoder=False),
-    "ablation_a2": ModelCfg(kind="detach", use_self_encoder=False),
-    "tokenhsi": ModelCfg(kind="tokenhsi", num_heads=2, ff_dim=512),
-    "cml": ModelCfg(kind="cml", critic_objectives=CML_OBJECTIVES),
-    "mlp": ModelCfg(kind="mlp"),
+    "detach": DetachCfg(),
+    "detach_shared": DetachCfg(shared_trunk=True),
+    "ablation_a1": DetachCfg(use_env_encoder=False),
+    "ablation_a2": DetachCfg(use_self_encoder=False),
+    "tokenhsi": TokenHSICfg(num_heads=2, ff_dim=512),
+    "cml": CMLCfg(critic_objectives=CML_OBJECTIVES),
+    "mlp": MLPCfg(),
 }
 
 
@@ -378,13 +382,23 @@ def test_wrong_group_width_is_a_one_line_error() -> None:
 
 
 @pytest.mark.parametrize("name", list(KINDS))
-def test_cfg_dicts_are_plain_and_resolve(name: str) -> None:
-    actor_cfg, critic_cfg = rsl_rl_model_cfgs(KINDS[name], SPEC)
-    yaml.safe_dump({"actor": actor_cfg, "critic": critic_cfg})  # plain data only
+def test_cfg_entries_carry_the_typed_config_and_resolve(name: str) -> None:
+    actor_cfg, critic_cfg = rsl_rl_model_cfgs(KINDS[name], SPEC, default_std=0.3)
+    yaml.safe_dump(to_plain({"actor": actor_cfg, "critic": critic_cfg}))  # dumpable for params files
     cls, kwargs = resolve_class(actor_cfg)
-    assert model_cfg_from_dict(kwargs["model"]) == KINDS[name]
-    assert kwargs["obs_spec"] == SPEC.to_dict() and "distribution_cfg" in kwargs
-    assert critic_cfg["value_objectives"] == list(KINDS[name].critic_objectives)
+    assert kwargs["model"] == KINDS[name] and type(kwargs["model"]) is type(KINDS[name])
+    assert kwargs["obs_spec"] == SPEC and kwargs["distribution_cfg"]["init_std"] == 0.3
+    objectives = list(KINDS[name].critic_objectives)
+    assert critic_cfg.get("value_objectives", ["task"]) == objectives
+
+
+def test_a_model_config_of_the_wrong_kind_is_refused() -> None:
+    obs = random_obs(4)
+    actor_cfg, _ = rsl_rl_model_cfgs(KINDS["detach"], SPEC, default_std=1.0)
+    cls, kwargs = resolve_class(actor_cfg)
+    kwargs["model"] = KINDS["mlp"]
+    with pytest.raises(TypeError, match="DetachModel needs a DetachCfg, got MLPCfg"):
+        cls(obs, DEFAULT_OBS_GROUPS, "actor", SPEC.num_actions, **kwargs)
 
 
 class FakeEnv:
@@ -411,7 +425,7 @@ class FakeEnv:
 @pytest.mark.parametrize("name", list(KINDS))
 def test_rsl_rl_runner_trains_one_iteration(name: str) -> None:
     """The stock OnPolicyRunner + PPO build our classes from the cfg dicts and run act/update."""
-    actor_cfg, critic_cfg = rsl_rl_model_cfgs(KINDS[name], SPEC)
+    actor_cfg, critic_cfg = rsl_rl_model_cfgs(KINDS[name], SPEC, default_std=1.0)
     train_cfg = {
         "num_steps_per_env": 4,
         "save_interval": 100,

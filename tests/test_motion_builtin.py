@@ -8,11 +8,12 @@ import numpy as np
 import pytest
 import torch
 
-from detach.envs.humanoid import BODY_NAMES, dof_ranges
+from detach.character.body import BODY_NAMES, dof_ranges
 from detach.motion import builtin
 from detach.motion.kinematics import humanoid_fk
 from detach.motion.plausibility import check_clip, foot_clearance
-from detach.motion.skills import SKILL_GROUPS, SKILLS
+from detach.motion.labels import MOTION_LABELS
+from detach.skills import skill_class, skill_names
 
 
 @pytest.fixture(scope="module")
@@ -27,9 +28,9 @@ def clips():
 
 def test_labels_cover_every_task_group(clips):
     labels = {c.skill for c in clips.values()}
-    assert labels == set(SKILLS)
-    assert set(SKILL_GROUPS) == {"traj", "carry", "climb", "sit"}
-    assert all(set(v) <= labels for v in SKILL_GROUPS.values())
+    assert labels == set(MOTION_LABELS)
+    assert skill_names() == ("follow", "carry", "climb", "sit")
+    assert all(set(skill_class(s).motion_labels) <= labels for s in skill_names())
     assert all(c.meta["synthetic"] for c in clips.values())
 
 
@@ -89,6 +90,6 @@ def test_sit_and_step_targets(clips):
 def test_default_motion_lib(clips):
     lib = builtin.default_motion_lib("cpu")
     assert lib.num_clips == len(clips)
-    ids, w = lib.sample_windows(32, steps=10, skills=SKILL_GROUPS["climb"])
-    assert set(lib.clip_skill[ids].tolist()) <= {SKILLS.index("step_up"), SKILLS.index("walk")}
+    ids, w = lib.sample_windows(32, steps=10, skills=skill_class("climb").motion_labels)
+    assert set(lib.clip_skill[ids].tolist()) <= {MOTION_LABELS.index("step_up"), MOTION_LABELS.index("walk")}
     assert w.key_body_pos.shape == (32, 10, 4, 3) and torch.isfinite(w.dof_vel).all()

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from detach.envs.humanoid import BODY_NAMES, DOF_NAMES
+from detach.character.body import BODY_NAMES, DOF_NAMES
 from detach.motion.clip import ClipError, MotionClip, clip_from_arrays, load_clip, load_clips, save_clip
 
 
@@ -44,7 +44,7 @@ def _write(path, **over):
     (dict(dof_pos=np.zeros((5, 31))), "dof_pos has shape [5, 31], expected [5, 32]"),
     (dict(body_pos=np.zeros((4, 15, 3))), "body_pos has shape [4, 15, 3], expected [5, 15, 3]"),
     (dict(root_pos=np.full((5, 3), np.nan)), "root_pos contains NaN"),
-    (dict(skill="dance"), "unknown skill 'dance'"),
+    (dict(skill="dance"), "unknown skill label 'dance'"),
     (dict(fps=-1.0), "fps must be a positive number"),
     (dict(root_quat=np.zeros((5, 4))), "root_quat is not unit length"),
     (dict(body_pos=None), "missing key(s) body_pos"),
@@ -72,6 +72,6 @@ def test_not_a_clip_and_missing(tmp_path):
 def test_save_refuses_invalid_clip(tmp_path):
     clip = make_clip()
     clip.skill = "fly"
-    with pytest.raises(ClipError, match="x.npz: unknown skill 'fly'"):
+    with pytest.raises(ClipError, match="x.npz: unknown skill label 'fly'"):
         save_clip(clip, tmp_path / "x.npz")
     assert not (tmp_path / "x.npz").exists()

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from detach.envs.humanoid import BODY_NAMES, DOF_NAMES, KEY_BODIES
+from detach.character.body import BODY_NAMES, DOF_NAMES, KEY_BODIES
+from detach.skills import skill_class
 from detach.motion.clip import clip_from_arrays, save_clip
 from detach.motion.library import MotionLib
 from detach.motion.rotations import quat_from_yaw_pitch
@@ -34,11 +35,12 @@ def test_sampling_respects_skill_weights():
     counts = torch.bincount(lib.sample_clips(n, generator=g), minlength=6).double() / n
     expect = torch.tensor([0.25, 0.25, 0.3, 0.2 / 3, 0.2 / 3, 0.2 / 3], dtype=torch.float64)
     assert torch.allclose(counts, expect, atol=0.006), counts
-    # restricted to a task group name (SKILL_GROUPS["sit"] = sit, walk): renormalised over both
-    probs = lib.clip_probs("sit")
+    # restricted to a skill's labels (sit's motion_labels = sit, walk): renormalised over both
+    labels = skill_class("sit").motion_labels
+    probs = lib.clip_probs(labels)
     expect = torch.tensor([0.3125, 0.3125, 0.375, 0, 0, 0], dtype=torch.float64)
     assert torch.allclose(probs, expect)
-    sub = torch.bincount(lib.sample_clips(n, skills="sit", generator=g), minlength=6).double() / n
+    sub = torch.bincount(lib.sample_clips(n, skills=labels, generator=g), minlength=6).double() / n
     assert torch.allclose(sub, expect, atol=0.006)
     assert torch.allclose(lib.clip_probs(["idle"]), torch.tensor([0, 0, 0, 1 / 3, 1 / 3, 1 / 3], dtype=torch.float64))
     # within a label by duration: w2 is 3 s long, w1 1 s

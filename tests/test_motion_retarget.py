@@ -8,7 +8,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from detach.envs.humanoid import BODY_NAMES, DOF_NAMES
+from detach.character.body import BODY_NAMES, DOF_NAMES
 from detach.motion.bvh_import import read_bvh
 from detach.motion.cli import main
 from detach.motion.clip import load_clip
@@ -140,7 +140,7 @@ def test_cli_errors(tmp_path, capsys):
     assert main(["import", str(truncated)]) == 2  # bvhio alone would loop forever on this file
     assert "truncated.bvh: Frames: 3 but only 2 frame lines" in _err(capsys)
     assert main(["import", str(KNEE_BVH), "--skill", "dance", "--out", str(tmp_path)]) == 2
-    assert "unknown skill 'dance'" in _err(capsys)
+    assert "unknown skill label 'dance'" in _err(capsys)
     assert main(["list", str(tmp_path / "nodir")]) == 2
     assert "nodir: no such folder" in _err(capsys)
 

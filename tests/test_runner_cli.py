@@ -6,7 +6,6 @@ Runs use the puppet on the follow task with tiny settings so each takes seconds 
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -16,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from detach import cli
+from detach.run_contract import EvalResult
 from detach.runs.folder import RunFolder, find_runs
 from detach.runs.mcap_log import read_episodes, read_metrics, read_scene
 
@@ -38,24 +38,25 @@ def test_finished_run_leaves_the_contracted_files(tmp_path: Path) -> None:
     run = _only_run(tmp_path)
     assert run.path.name.endswith("-follow-mlp-s0")
     status = run.status()
-    assert status["state"] == "finished" and status["iteration"] == 2 and status["error"] is None
+    assert status.state == "finished" and status.iteration == 2 and status.error is None
     assert run.config().env.character == "puppet"
     assert (run.checkpoints / "model_1.pt").exists()
     assert "evaluation on follow" in run.stdout_path.read_text()
     metrics = read_metrics(run.log_path)
     assert [m["iteration"] for m in metrics] == [0, 1] and metrics[0]["fps"] > 0
     scene = read_scene(run.log_path)
-    assert len(scene["bodies"]) == 15 and scene["body_geoms"]
+    assert len(scene.bodies) == 15 and scene.body_geoms
+    assert [t.skill for t in scene.targets] == [] and scene.objects == []  # traj_rand: nothing to draw
     frames = read_episodes(run.log_path)[1]  # recorded under the checkpoint's iteration
     assert len(frames) >= 2 and len(frames[0]["pos"]) == 15
     result = run.eval_result()
-    assert result["trials"] == 2 and result["task"] == result["trained_on"] == "follow"
-    assert result["plan"] == ["traj"] and 0.0 <= result["lh_success"]["rate"] <= 1.0
+    assert result.trials == 2 and result.task == result.trained_on == "follow"
+    assert result.plan == ["follow"] and 0.0 <= result.lh_success.rate <= 1.0
 
 
 def test_crash_marks_the_run_failed(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                     capsys: pytest.CaptureFixture[str]) -> None:
-    import detach.train.session as session
+    import detach.runs.session as session
 
     def broken(*_a, **_k):
         raise RuntimeError("injected failure")
@@ -64,8 +65,8 @@ def test_crash_marks_the_run_failed(tmp_path: Path, monkeypatch: pytest.MonkeyPa
     code = cli.main([FOLLOW, "--model", "mlp", "--out", str(tmp_path), *TINY])
     assert code == 1
     run = _only_run(tmp_path)
-    assert run.status()["state"] == "failed"
-    assert run.status()["error"] == "RuntimeError: injected failure"
+    assert run.status().state == "failed"
+    assert run.status().error == "RuntimeError: injected failure"
     assert "injected failure" in run.stdout_path.read_text()
     assert "run failed: RuntimeError: injected failure" in capsys.readouterr().err
 
@@ -82,7 +83,7 @@ def test_sigterm_interrupts_then_resume_finishes(tmp_path: Path) -> None:
         if runs:
             run = runs[0]
             try:
-                if run.status().get("iteration", 0) >= 2:
+                if run.status().iteration >= 2:
                     break
             except (OSError, ValueError):
                 pass
@@ -91,12 +92,12 @@ def test_sigterm_interrupts_then_resume_finishes(tmp_path: Path) -> None:
     proc.send_signal(signal.SIGTERM)
     assert proc.wait(timeout=60) == 130
     status = run.status()
-    assert status["state"] == "interrupted" and "SIGTERM" in status["error"]
+    assert status.state == "interrupted" and "SIGTERM" in status.error
     checkpoint = run.latest_checkpoint()
     done = int(checkpoint.stem.split("_")[1])
-    assert done + 1 == status["iteration"], "the checkpoint is the last completed iteration"
+    assert done + 1 == status.iteration, "the checkpoint is the last completed iteration"
     code = cli.main(["--resume", str(run.path), "--no-eval", f"train.max_iterations={done + 3}"])
-    assert code == 0 and run.status()["state"] == "finished"
+    assert code == 0 and run.status().state == "finished"
     iterations = [m["iteration"] for m in read_metrics(run.log_path)]
     assert iterations == list(range(done + 3)), "the log keeps the first part and continues"
 
@@ -116,9 +117,9 @@ def test_eval_on_another_task_writes_its_own_file(tmp_path: Path) -> None:
     run = _only_run(tmp_path)
     sit = ROOT / "configs/tasks/sit.yaml"
     assert cli.main(["--eval", str(run.path), "--task", str(sit), "--trials", "2"]) == 0
-    result = json.loads((run.path / "eval_sit.json").read_text())
-    assert result["task"] == "sit" and result["trained_on"] == "follow"
-    assert result["plan"] == ["sit"] and not run.eval_path.exists()
+    result = EvalResult.from_json(json.loads((run.path / "eval_sit.json").read_text()))
+    assert result.task == "sit" and result.trained_on == "follow"
+    assert result.plan == ["sit"] and not run.eval_path.exists()
 
 
 def test_two_cell_quick_sweep_resumes_and_prints_its_table(tmp_path: Path) -> None:
@@ -130,9 +131,9 @@ def test_two_cell_quick_sweep_resumes_and_prints_its_table(tmp_path: Path) -> No
     out = tmp_path / "runs"
     assert cli.main(["--sweep", str(sweep), "--quick", "--jobs", "2", "--out", str(out)]) == 0
     runs = find_runs(out)
-    assert sorted(r.status()["cell"] for r in runs) == ["mini/follow/mlp/s0",
+    assert sorted(r.status().cell for r in runs) == ["mini/follow/mlp/s0",
                                                         "mini/follow/tokenhsi/s0"]
-    assert all(r.status()["state"] == "finished" and r.eval_result()["trials"] == 2
+    assert all(r.status().state == "finished" and r.eval_result().trials == 2
                for r in runs)
     stamps = {r.path: r.status_path.stat().st_mtime for r in runs}
     assert cli.main(["--sweep", str(sweep), "--quick", "--out", str(out)]) == 0
@@ -186,9 +187,9 @@ def test_sweep_on_a_local_ray(tmp_path: Path) -> None:
     ray.shutdown()
     assert code == 0
     runs = find_runs(out)
-    assert sorted(r.status()["cell"] for r in runs) == ["rayed/follow/cml/s0",
+    assert sorted(r.status().cell for r in runs) == ["rayed/follow/cml/s0",
                                                         "rayed/follow/mlp/s0"]
-    assert all(r.status()["state"] == "finished" and r.eval_result() for r in runs)
+    assert all(r.status().state == "finished" and r.eval_result() for r in runs)
 
 
 def test_resume_refuses_a_run_whose_process_is_alive(tmp_path: Path,

@@ -9,6 +9,7 @@ import pytest
 
 from detach.config import resolve
 from detach.eval.metrics import egr, mean_interval, sgr, success_rate, wilson_interval
+from detach.run_contract import TF_TOPIC, EpisodeFrame, SceneMessage, SceneObject
 from detach.runs.folder import RunFolder, find_runs
 from detach.runs.mcap_log import RunLogWriter, iter_messages, read_episodes, read_metrics, read_scene
 
@@ -33,8 +34,9 @@ def test_success_rate_partial_credit_uses_mean_interval() -> None:
 def test_generalisation_rates_reproduce_the_paper() -> None:
     # Paper Table II, DETACH on LH2: Follow 1.00, Carry 0.96, Follow 0.67, Sit 0.16 -> SGR 0.08;
     # LH SR 0.70 against LH1's 0.72 -> EGR 0.97.
-    plan = ["traj", "carry", "traj", "sit"]
+    plan = ["follow", "carry", "follow", "sit"]
     assert sgr(plan, [1.00, 0.96, 0.67, 0.16]) == pytest.approx(0.0816, abs=1e-3)
+    assert sgr(["traj", "carry", "traj", "sit"], [1.00, 0.96, 0.67, 0.16]) == sgr(plan, [1.00, 0.96, 0.67, 0.16])
     assert egr(0.70, 0.72) == pytest.approx(0.97, abs=0.005)
     assert egr(0.5, 0.0) == 0.0
 
@@ -48,11 +50,11 @@ def test_run_folder_layout_and_states(tmp_path: Path, cfg) -> None:
     run = RunFolder.create(tmp_path, cfg, now=0)
     assert run.path.name.endswith("-lh1-mlp-s4")
     assert run.config() == cfg and run.checkpoints.is_dir()
-    assert run.status()["state"] == "queued"
+    assert run.status().state == "queued"
     run.set_state("running", iteration=3)
     status = run.set_state("failed", error="RuntimeError: boom")
-    assert status["state"] == "failed" and status["iteration"] == 3 and status["started"]
-    assert status["error"] == "RuntimeError: boom"
+    assert status.state == "failed" and status.iteration == 3 and status.started
+    assert status.error == "RuntimeError: boom" and run.status() == status
     with pytest.raises(ValueError):
         run.set_state("exploded")  # type: ignore[arg-type]
     again = RunFolder.create(tmp_path, cfg, now=0)
@@ -66,14 +68,15 @@ def test_run_folder_layout_and_states(tmp_path: Path, cfg) -> None:
 
 def _write_log(path: Path, frames: int = 40) -> None:
     with RunLogWriter(path, flush_every=10) as log:
-        log.log_scene({"objects": [{"name": "box", "pos": [1, 2, 0.35]}],
-                       "trajectories": {"0": [[0, 0], [1, 1]]}, "targets": []})
+        log.log_scene(SceneMessage("t", [SceneObject("box", "Box", "Box/b/mesh.obj", [1, 2, 0.35], [1, 0, 0, 0],
+                                                     [0.5, 0.5, 0.7], False)],
+                                   {"0": [[0, 0], [1, 1]]}, [], ["pelvis", "torso"], []))
         for i in range(5):
             log.log_metrics(i, {"reward/mean": i / 10, "loss/value": 1.0 - i / 10}, stage="ppo")
         for f in range(frames):
-            log.log_frame(episode=f // 20, frame=f % 20, time_s=f / 30,
-                          bodies=["pelvis", "torso"], pos=[[0, 0, 0.9 + f], [0, 0, 1.2]],
-                          quat=[[1, 0, 0, 0], [1, 0, 0, 0]], subtask=f // 20, skill="traj")
+            log.log_frame(EpisodeFrame(episode=f // 20, frame=f % 20, time=f / 30,
+                                       bodies=["pelvis", "torso"], pos=[[0, 0, 0.9 + f], [0, 0, 1.2]],
+                                       quat=[[1, 0, 0, 0], [1, 0, 0, 0]], subtask=f // 20, skill="follow"))
 
 
 def test_mcap_round_trip_message_for_message(tmp_path: Path) -> None:
@@ -83,11 +86,11 @@ def test_mcap_round_trip_message_for_message(tmp_path: Path) -> None:
     assert [m["iteration"] for m in metrics] == list(range(5))
     assert metrics[3] == {"iteration": 3, "stage": "ppo", "reward/mean": 0.3,
                           "loss/value": pytest.approx(0.7)}
-    assert read_scene(path)["objects"][0]["name"] == "box"
+    assert read_scene(path).objects[0].name == "box"
     episodes = read_episodes(path)
     assert sorted(episodes) == [0, 1] and len(episodes[1]) == 20
     assert episodes[1][5]["pos"][0] == [0, 0, 25.9] and episodes[1][5]["subtask"] == 1
-    tf = [m for topic, _t, m in iter_messages(path, ["/tf"])]
+    tf = [m for topic, _t, m in iter_messages(path, [TF_TOPIC])]
     assert len(tf) == 40
     first = tf[0]["transforms"][0]
     assert first["child_frame_id"] == "pelvis" and first["rotation"]["w"] == 1
@@ -124,5 +127,5 @@ def test_append_keeps_earlier_messages(tmp_path: Path) -> None:
     with RunLogWriter(path, append=True) as log:
         log.log_metrics(5, {"reward/mean": 0.5})
     assert [m["iteration"] for m in read_metrics(path)] == [0, 1, 2, 3, 4, 5]
-    assert read_scene(path)["objects"][0]["name"] == "box"
+    assert read_scene(path).objects[0].name == "box"
     assert sum(len(v) for v in read_episodes(path).values()) == 4

@@ -10,13 +10,14 @@ import numpy as np
 import pytest
 import trimesh
 
+from detach.character import make_character
 from detach.config_schema import SceneObjectCfg, SimCfg, TaskCfg
 from scene_builder.assets import load_asset
 from scene_builder.scene import compile_scene
 
 
 def write_box_asset(folder, size) -> None:
-    """A minimal valid asset folder (ARCHITECTURE.md, "Asset folder") for a box of `size`."""
+    """A minimal valid asset folder (docs/ARCHITECTURE.md, "Asset folder") for a box of `size`."""
     (folder / "collision").mkdir(parents=True)
     (folder / "height_map").mkdir()
     mesh = trimesh.creation.box(extents=size)
@@ -56,7 +57,8 @@ def _task(**kw) -> TaskCfg:
 @pytest.mark.parametrize("character", ["humanoid", "puppet"])
 def test_objects_placed_as_in_yaml(box_assets, character):
     task = _task()
-    model, info = compile_scene(task, SimCfg(), character, assets={0: box_assets["small"], 1: box_assets["table"]})
+    model, info = compile_scene(task, make_character(character), SimCfg(),
+                                assets={0: box_assets["small"], 1: box_assets["table"]})
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
     for obj, cfg in zip(info.objects, task.scene):
@@ -68,7 +70,7 @@ def test_objects_placed_as_in_yaml(box_assets, character):
     assert crate.qpos_adr >= 0 and table.qpos_adr == -1
     assert model.body_mass[crate.body_id] == pytest.approx(4.0)
     np.testing.assert_allclose(table.tar_sit_world, [-1.5, 1.0, 0.35 + 0.35 + 0.1], atol=1e-9)
-    assert (crate.grasp_eq >= 0) == (character == "puppet")
+    assert (crate.link_eq >= 0) == (character == "puppet")
     assert info.dynamic == (0,)
     # visual meshes never collide, hulls do
     for g in range(model.ngeom):
@@ -77,7 +79,8 @@ def test_objects_placed_as_in_yaml(box_assets, character):
 
 
 def test_box_dropped_rests_at_half_height(box_assets):
-    model, info = compile_scene(_task(), SimCfg(), "humanoid", assets={0: box_assets["small"], 1: box_assets["table"]})
+    model, info = compile_scene(_task(), make_character("humanoid"), SimCfg(),
+                                assets={0: box_assets["small"], 1: box_assets["table"]})
     data = mujoco.MjData(model)
     crate = info.objects[0]
     data.qpos[info.root_qpos_adr:info.root_qpos_adr + 3] = (5.0, 5.0, 0.94)  # character out of the way
@@ -91,7 +94,8 @@ def test_box_dropped_rests_at_half_height(box_assets):
 
 
 def test_static_height_raster(box_assets):
-    _, info = compile_scene(_task(), SimCfg(), "humanoid", assets={0: box_assets["small"], 1: box_assets["table"]})
+    _, info = compile_scene(_task(), make_character("humanoid"), SimCfg(),
+                            assets={0: box_assets["small"], 1: box_assets["table"]})
     r = info.raster
     # the table (rotated 90 deg: 0.8 x 1.2 footprint) is 0.7 m high; the dynamic crate is not in it
     assert r.sample(np.array([-1.5, 1.0])) == pytest.approx(0.7, abs=1e-3)

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from detach.config import resolve
-from detach.train.session import build_runner
+from detach.train.setup import build_runner
 
 ROOT = Path(__file__).resolve().parents[1]
 MODELS = ["mlp", "tokenhsi", "cml", "detach", "ablation_a1", "ablation_a2"]

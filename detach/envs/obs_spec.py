@@ -26,7 +26,7 @@ class ObsSpec:
     height_map_cells: int
     """The last `height_map_cells` entries of an env frame are the local height map (grid x grid)."""
     num_skills: int
-    """Width of the `task` one-hot (order of `detach.config_schema.SKILLS`)."""
+    """Width of the `task` one-hot (skill-registry order, `detach.skills`)."""
     critic_dim: int
     """Width of the privileged `critic` group."""
     amp_steps: int
@@ -46,6 +46,13 @@ class ObsSpec:
 
     def to_dict(self) -> dict[str, int]:
         return asdict(self)
+
+    def describe(self) -> str:
+        """A table of the groups and their shapes (for start-up logs)."""
+        shapes = {"self": f"{self.self_steps} x {self.self_dim}", "env": f"{self.env_steps} x {self.env_dim}",
+                  "task": f"{self.num_skills}", "critic": f"{self.critic_dim}",
+                  "amp": f"{self.amp_steps} x {self.amp_dim}"}
+        return "\n".join(["Observation groups", "  group   shape", *(f"  {g:<7} {v}" for g, v in shapes.items())])
 
 
 EXAMPLE_SPEC = ObsSpec(

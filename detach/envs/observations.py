@@ -1,4 +1,5 @@
-"""Observation terms (ARCHITECTURE.md, "Observations"): pure functions on batched tensors.
+"""Observations (docs/ARCHITECTURE.md, "Observations"): pure functions on batched tensors, and
+`ObservationBuilder`, which assembles them into the TensorDict of every step.
 
 Frames: everything is expressed in the character's heading frame (world rotated about +Z by
 the root's yaw; +X = where the character faces) and, for positions, relative to the root
@@ -9,14 +10,15 @@ Groups and their frame layouts (sizes for the 15-body, 32-DoF character):
 - `self` (287 per frame): root height (1), positions of the 14 non-root bodies (42), rotations
   of the 15 bodies as tangent/normal 6-D (90), linear (45) and angular (45) velocities of the
   15 bodies, hinge positions (32) and velocities (32). Proprioception only.
-- `env` (681 per frame): current target relative to the root (3); 10 trajectory samples
-  0.5 s apart, XY relative to the root (20; the target's XY repeated outside `traj`
-  subtasks); the subtask's object: position relative to the root (3), rotation 6-D (6), its 8
-  bounding-box corners relative to the root (24), zeros when the subtask has no object;
+- `env` (681 per frame): current target relative to the root (3); `env.trajectory.num_samples`
+  (10) path points `sample_dt` (0.5 s) apart, XY relative to the root (20; the target's XY
+  repeated outside subtasks that follow a path); the subtask's object: position relative to
+  the root (3), rotation 6-D (6), its 8 bounding-box corners relative to the root (24), zeros
+  when the subtask has no object;
   the 25 x 25 local height map (625): world-Z surface heights on a grid of 0.1 m spacing
   centred on the root and aligned with the heading (row-major, x forward then y left).
   Environment only: nothing here depends on the character's joints or velocities.
-- `task` (4): one-hot of the current skill in `SKILLS` order.
+- `task` (4): one-hot of the current skill in skill-registry order (`detach.skills`).
 - `amp` (89 per frame, 10 frames): root height (1), root rotation 6-D in the heading frame
   (6), root linear and angular velocity in the heading frame (3 + 3), hinge positions (32)
   and velocities (32), hand and foot positions relative to the root, heading frame (12).
@@ -32,20 +34,24 @@ import math
 
 import torch
 import torch.nn.functional as F
+from tensordict import TensorDict
 
-from detach.envs.torch_math import box_corners_fast, heading_matrix, quat_axes_xz, quat_to_matrix, yaw_of
+from detach.config_schema import EnvCfg
+from detach.envs.obs_spec import ObsSpec
+from detach.sim.raster import Raster
+from detach.torch_math import box_corners_fast, heading_matrix, quat_axes_xz, quat_to_matrix, yaw_of
 
 NUM_BODIES = 15
 NUM_DOF = 32
 NUM_KEY_BODIES = 4
 SELF_DIM = 1 + 3 * (NUM_BODIES - 1) + 6 * NUM_BODIES + 3 * NUM_BODIES + 3 * NUM_BODIES + 2 * NUM_DOF
 AMP_DIM = 1 + 6 + 3 + 3 + 2 * NUM_DOF + 3 * NUM_KEY_BODIES
-TRAJ_SAMPLES = 10
 CRITIC_EXTRA = 5
 
 
-def env_dim(grid: int) -> int:
-    return 3 + 2 * TRAJ_SAMPLES + 3 + 6 + 24 + grid * grid
+def env_dim(grid: int, path_samples: int = 10) -> int:
+    """Width of one env frame for a grid x grid height map and `path_samples` path points."""
+    return 3 + 2 * path_samples + 3 + 6 + 24 + grid * grid
 
 
 def _heading(root_quat: torch.Tensor, R: torch.Tensor | None) -> torch.Tensor:
@@ -98,30 +104,6 @@ def height_grid_offsets(grid: int, spacing: float, device: torch.device | str) -
     r = (torch.arange(grid, device=device, dtype=torch.float32) - (grid - 1) / 2.0) * spacing
     gx, gy = torch.meshgrid(r, r, indexing="ij")
     return torch.stack((gx.reshape(-1), gy.reshape(-1), torch.zeros(grid * grid, device=device)), dim=-1)
-
-
-class Raster:
-    """A static height raster on the env's device, sampled bilinearly with `grid_sample`
-    (0 = floor outside it). heights[i, j] is at (origin_x + i * spacing, origin_y + j * spacing)."""
-
-    def __init__(self, heights: torch.Tensor, origin: tuple[float, float], spacing: float) -> None:
-        self.img = heights[None, None].float()
-        nx, ny = heights.shape
-        dev = heights.device
-        # world (x, y) -> grid_sample's (u, v) in [-1, 1]: u indexes columns (y), v rows (x)
-        self.su, self.sv = 2.0 / (spacing * max(ny - 1, 1)), 2.0 / (spacing * max(nx - 1, 1))
-        self.ou, self.ov = origin[1], origin[0]
-        self.scale = torch.tensor([self.su, self.sv], device=dev)
-        self.shift = torch.tensor([origin[1] * self.su + 1.0, origin[0] * self.sv + 1.0], device=dev)
-
-    def sample_uv(self, uv: torch.Tensor) -> torch.Tensor:
-        out = F.grid_sample(self.img, uv.reshape(1, -1, 1, 2), mode="bilinear", padding_mode="zeros",
-                            align_corners=True)
-        return out.reshape(uv.shape[:-1])
-
-    def sample(self, xy: torch.Tensor) -> torch.Tensor:
-        """Heights [...] at world points xy [..., 2]."""
-        return self.sample_uv(xy.flip(-1) * self.scale - self.shift)
 
 
 def local_height_map(root_pos: torch.Tensor, R: torch.Tensor, offsets: torch.Tensor, raster: Raster,
@@ -196,3 +178,55 @@ class History:
     @property
     def newest(self) -> torch.Tensor:
         return self.buf[:, -1]
+
+
+class ObservationBuilder:
+    """Assembles the observation TensorDict of every step from the state and the skills'
+    targets, keeping the `self`, `env` and `amp` histories (see the module docstring)."""
+
+    def __init__(self, cfg: EnvCfg, num_envs: int, num_skills: int, num_actions: int, raster: Raster,
+                 key_bodies: list[int], dyn: torch.Tensor, obj_half: torch.Tensor, device: torch.device) -> None:
+        hm, samples = cfg.height_map, cfg.trajectory.num_samples
+        self.cfg, self.num_envs, self.num_skills, self.device = cfg, num_envs, num_skills, device
+        self.raster, self.dyn, self.obj_half = raster, dyn, obj_half
+        self.hm_offsets = height_grid_offsets(hm.grid, hm.spacing, device)
+        self.amp_idx = amp_index(key_bodies).to(device)
+        self.spec = ObsSpec(
+            self_steps=cfg.history_self, self_dim=SELF_DIM, env_steps=cfg.history_env,
+            env_dim=env_dim(hm.grid, samples), height_map_cells=hm.grid * hm.grid, num_skills=num_skills,
+            critic_dim=SELF_DIM + env_dim(hm.grid, samples) + num_skills + CRITIC_EXTRA,
+            amp_steps=cfg.amp_obs_steps, amp_dim=AMP_DIM, num_actions=num_actions)
+        self.h_self = History(num_envs, cfg.history_self, SELF_DIM, device)
+        self.h_env = History(num_envs, cfg.history_env, env_dim(hm.grid, samples), device)
+        self.h_amp = History(num_envs, cfg.amp_obs_steps, AMP_DIM, device)
+        self.sample_times = torch.arange(samples, device=device) * cfg.trajectory.sample_dt
+
+    def build(self, ctx, reset_ids: torch.Tensor, path_ahead: torch.Tensor, follows_path: torch.Tensor,
+              hold: torch.Tensor, progress: torch.Tensor) -> TensorDict:
+        """Observations of the state in ctx (a `SkillContext` with targets); reset_ids [n] get
+        their whole history filled with this frame. path_ahead [N, num_samples, 2] are the
+        reference points `sample_times` ahead; follows_path [N] says where they are shown;
+        hold and progress [N] are the transition hold fraction and the plan fraction done."""
+        st = ctx.state
+        R = heading_matrix(yaw_of(st.root_quat))
+        dyn = self.dyn
+        if self.cfg.height_map.enabled:
+            hmap = local_height_map(st.root_pos, R, self.hm_offsets, self.raster, st.obj_pos[:, dyn],
+                                    st.obj_quat[:, dyn], self.obj_half[dyn])
+        else:
+            hmap = torch.zeros(self.num_envs, self.hm_offsets.shape[0], device=self.device)
+        f_self = self_frame(st.body_pos, st.body_quat, st.body_lin, st.body_ang, st.dof_pos, st.dof_vel, R)
+        f_env = env_frame(st.root_pos, R, ctx.target, path_ahead, follows_path, ctx.has_obj, ctx.obj_pos,
+                          ctx.obj_quat, ctx.obj_half, hmap)
+        f_amp = f_self[:, self.amp_idx]  # == amp_frame(...) of the same state (tested)
+        for h, f in ((self.h_self, f_self), (self.h_env, f_env), (self.h_amp, f_amp)):
+            h.push(f)
+            if len(reset_ids):
+                h.fill(reset_ids, f[reset_ids])
+        task = F.one_hot(ctx.skill, self.num_skills).float()
+        extra = torch.cat(((ctx.obj_lin[:, None] @ R)[:, 0] * ctx.has_obj[:, None], hold[:, None],
+                           progress[:, None]), dim=-1)
+        critic = torch.cat((f_self, f_env, task, extra), dim=-1)
+        return TensorDict({"self": self.h_self.flat(), "env": self.h_env.flat(), "task": task,
+                           "critic": critic, "amp": self.h_amp.flat()}, batch_size=[self.num_envs],
+                          device=self.device)

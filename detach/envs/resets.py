@@ -1,5 +1,8 @@
 """Initial states of episodes: the character at `humanoid.init_pos2d`, objects at `pos3d`.
 
+The character writes its own root (`Character.write_root`: a free joint, or the puppet's
+slides); this module decides where it stands, which way it faces and in what pose.
+
 Yaw: uniform in [-pi, pi) when `humanoid.init_rot_randomize`, else `humanoid.init_yaw`.
 Pose (`env.init`): `default` = the standing default pose; `random` = a reference state from
 `reference_sampler` (set by the motion library for reference-state initialisation; without
@@ -19,29 +22,26 @@ from typing import Callable
 import mujoco
 import torch
 
+from detach.character import Character
+from detach.character.body import NUM_DOF, START_HEIGHT, dof_ranges
 from detach.config_schema import RunConfig
-from detach.envs import humanoid as H
-from detach.envs.torch_math import quat_conj, quat_from_yaw, quat_mul, quat_rotate_inverse, rotate_yaw, yaw_of
+from detach.torch_math import quat_conj, quat_from_yaw, quat_mul, yaw_of
 from scene_builder.scene import SceneInfo
 
 ReferenceSampler = Callable[[int, torch.Generator], dict]
 
 
 class ResetSampler:
-    def __init__(self, cfg: RunConfig, scene: SceneInfo, model: mujoco.MjModel, gen: torch.Generator,
-                 device: torch.device) -> None:
-        self.cfg, self.scene, self.gen, self.device = cfg, scene, gen, device
+    def __init__(self, cfg: RunConfig, scene: SceneInfo, model: mujoco.MjModel, character: Character,
+                 gen: torch.Generator, device: torch.device) -> None:
+        self.cfg, self.scene, self.character, self.gen, self.device = cfg, scene, character, gen, device
         self.qpos0 = torch.as_tensor(model.qpos0, dtype=torch.float32, device=device)
         self.nv = model.nv
-        self.puppet = scene.character == "puppet"
         self.reference_sampler: ReferenceSampler | None = None
         self.init_xy = torch.tensor(cfg.task.humanoid.init_pos2d, dtype=torch.float32, device=device)
         rest = [float(o.pos[2]) for o in scene.objects]
-        self.rest_z = torch.tensor(rest + [0.0], device=device)  # index -1 -> 0
-
-    def rest_z_of(self, obj: torch.Tensor) -> torch.Tensor:
-        """Resting height of each env's object (bbox centre z at reset); 0 for -1."""
-        return self.rest_z[obj]
+        self.rest_z = torch.tensor(rest + [0.0], device=device)
+        """Resting height of each object (bbox centre z at reset), indexed by object; [-1] is 0."""
 
     def _rand(self, *shape: int) -> torch.Tensor:
         return torch.rand(*shape, generator=self.gen).to(self.device)
@@ -61,10 +61,10 @@ class ResetSampler:
         yaw = (self._rand(n) * 2 - 1) * math.pi if hc.init_rot_randomize else torch.full((n,), hc.init_yaw,
                                                                                            device=self.device)
         xy = self.init_xy.expand(n, 2).clone()
-        height = torch.full((n,), H.START_HEIGHT, device=self.device)
+        height = torch.full((n,), START_HEIGHT, device=self.device)
         tilt = torch.tensor([1.0, 0.0, 0.0, 0.0], device=self.device).expand(n, 4).clone()
-        dof = torch.zeros(n, H.NUM_DOF, device=self.device)
-        dof_vel = torch.zeros(n, H.NUM_DOF, device=self.device)
+        dof = torch.zeros(n, NUM_DOF, device=self.device)
+        dof_vel = torch.zeros(n, NUM_DOF, device=self.device)
         lin = torch.zeros(n, 3, device=self.device)
         ang = torch.zeros(n, 3, device=self.device)
         ref = self._use_reference(n)
@@ -80,22 +80,13 @@ class ResetSampler:
                     if key in r:
                         dst[ref] = r[key].to(self.device)
             else:
-                noise = torch.randn(m, H.NUM_DOF, generator=self.gen).to(self.device) * 0.05
-                rng = torch.as_tensor(H.dof_ranges(), dtype=torch.float32, device=self.device)
+                noise = torch.randn(m, NUM_DOF, generator=self.gen).to(self.device) * 0.05
+                rng = torch.as_tensor(dof_ranges(), dtype=torch.float32, device=self.device)
                 dof[ref] = torch.maximum(torch.minimum(noise, rng[:, 1]), rng[:, 0])
         qpos = self.qpos0.expand(n, -1).clone()
         qvel = torch.zeros(n, self.nv, device=self.device)
-        a, v = self.scene.root_qpos_adr, self.scene.root_qvel_adr
-        if self.puppet:
-            qpos[:, a:a + 4] = torch.stack((xy[:, 0], xy[:, 1], height, yaw), dim=-1)
-            w = rotate_yaw(yaw, lin)
-            qvel[:, v:v + 4] = torch.stack((w[:, 0], w[:, 1], w[:, 2], ang[:, 2]), dim=-1)
-        else:
-            qpos[:, a:a + 3] = torch.cat((xy, height[:, None]), dim=-1)
-            qpos[:, a + 3:a + 7] = quat_mul(quat_from_yaw(yaw), tilt)
-            qvel[:, v:v + 3] = rotate_yaw(yaw, lin)
-            # free-joint angular velocity is in the body frame: heading-frame -> body frame
-            qvel[:, v + 3:v + 6] = quat_rotate_inverse(tilt, ang)
+        self.character.write_root(qpos, qvel, self.scene.root_qpos_adr, self.scene.root_qvel_adr,
+                                  xy, height, yaw, tilt, lin, ang)
         qpos[:, torch.as_tensor(self.scene.dof_qpos_adr, device=self.device)] = dof
         qvel[:, torch.as_tensor(self.scene.dof_qvel_adr, device=self.device)] = dof_vel
         for o in self.scene.objects:

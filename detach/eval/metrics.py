@@ -13,6 +13,8 @@ from dataclasses import dataclass
 from statistics import NormalDist
 from typing import Sequence
 
+from detach.skills import canonical_name
+
 
 @dataclass(frozen=True)
 class Rate:
@@ -23,13 +25,6 @@ class Rate:
     high: float
     n: int
 
-    def to_json(self) -> dict[str, float | int | list[float]]:
-        return {"rate": self.value, "ci": [self.low, self.high], "n": self.n}
-
-    @classmethod
-    def from_json(cls, data: dict) -> "Rate":
-        return cls(float(data["rate"]), float(data["ci"][0]), float(data["ci"][1]),
-                   int(data["n"]))
 
 
 def _z(confidence: float) -> float:
@@ -75,21 +70,36 @@ def mean_interval(values: Sequence[float], confidence: float = 0.95) -> tuple[fl
 
 
 def skill_rate(plan: Sequence[str], subtask_rates: Sequence[float], skill: str) -> float:
-    """Success of a skill in a plan: its first occurrence, 0 when the plan lacks it.
+    """Success of a skill in a plan: its first occurrence, 0 when the plan lacks it. Names are
+    compared as canonical skill names (`traj` of older files is follow).
 
     The first occurrence (not the mean over repeats) is what reproduces the paper's LH2 SGR
     (0.08 from Follow 1.00, Carry 0.96, Sit 0.16, no Climb).
     """
+    want = canonical_name(skill)
     for s, rate in zip(plan, subtask_rates):
-        if s == skill:
+        if _canonical(s) == want:
             return rate
     return 0.0
 
 
+def _canonical(name: str) -> str:
+    try:
+        return canonical_name(name)
+    except ValueError:
+        return name
+
+
+LEARNED_SKILLS = ("follow", "carry")
+"""The paper's foundational skills, trained fully (the denominator of SGR)."""
+NOVEL_SKILLS = ("climb", "sit")
+"""The paper's skills acquired compositionally (the numerator of SGR)."""
+
+
 def sgr(plan: Sequence[str], subtask_rates: Sequence[float]) -> float:
     """Skill generalisation rate ((S_climb + S_sit)/2) / ((S_follow + S_carry)/2)."""
-    learned = (skill_rate(plan, subtask_rates, "traj") + skill_rate(plan, subtask_rates, "carry"))
-    novel = (skill_rate(plan, subtask_rates, "climb") + skill_rate(plan, subtask_rates, "sit"))
+    learned = sum(skill_rate(plan, subtask_rates, s) for s in LEARNED_SKILLS)
+    novel = sum(skill_rate(plan, subtask_rates, s) for s in NOVEL_SKILLS)
     return novel / learned if learned > 0 else 0.0
 
 

@@ -1,16 +1,5 @@
-"""From per-trial outcomes to the eval.json of a run folder.
+"""From per-trial outcomes to the `EvalResult` of eval.json (`detach.run_contract`).
 
-eval.json (contract of ARCHITECTURE.md, "Run folder"):
-{
-  "task": "lh2", "trained_on": "lh1", "model": "detach", "seed": 0,
-  "checkpoint": "checkpoints/model_500.pt", "trials": 100, "confidence": 0.95,
-  "plan": ["traj", "carry", "traj", "sit"],
-  "subtasks": [{"index": 0, "skill": "traj", "rate": 1.0, "ci": [0.96, 1.0], "n": 100,
-                "mean_time": 12.1}, ...],
-  "lh_success": {"rate": 0.7, "ci": [0.6, 0.78], "n": 100},
-  "mean_execution_time": 85.0, "execution_time_ci": [80.1, 89.9],
-  "sgr": 0.08
-}
 Subtask rates use the paper's definitions (carry: grasp only = 0.5); an execution time runs
 from the subtask's start to the next subtask's start, a failure or the time-out.
 """
@@ -19,9 +8,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Sequence
 
 from detach.eval.metrics import mean_interval, sgr, success_rate
+from detach.run_contract import EvalResult, RateResult, SubtaskResult
 
 
 @dataclass
@@ -39,19 +29,20 @@ class TrialOutcome:
 
 
 def summarize(plan: Sequence[str], outcomes: Sequence[TrialOutcome], confidence: float = 0.95,
-              **meta: Any) -> dict[str, Any]:
-    """The eval.json dictionary for `outcomes` of `plan`; `meta` adds task/model/seed/..."""
+              task: str = "", model: str = "") -> EvalResult:
+    """The evaluation of `outcomes` of `plan` (skill names) on `task` by `model`."""
     subtasks = []
     for i, skill in enumerate(plan):
         rate = success_rate([o.scores[i] for o in outcomes], confidence)
         times = [o.times[i] for o in outcomes if i < len(o.times) and not math.isnan(o.times[i])]
         mean_time = sum(times) / len(times) if times else None
-        subtasks.append({"index": i, "skill": skill, **rate.to_json(), "mean_time": mean_time})
+        subtasks.append(SubtaskResult(rate.value, [rate.low, rate.high], rate.n, index=i, skill=skill,
+                                      mean_time=mean_time))
     lh = success_rate([1.0 if o.completed else 0.0 for o in outcomes], confidence)
     totals = [o.total_time for o in outcomes if not math.isnan(o.total_time)]
     mean_time, low, high = mean_interval(totals, confidence)
-    return {**meta, "trials": len(outcomes), "confidence": confidence, "plan": list(plan),
-            "subtasks": subtasks, "lh_success": lh.to_json(),
-            "mean_execution_time": None if math.isnan(mean_time) else mean_time,
-            "execution_time_ci": None if math.isnan(mean_time) else [low, high],
-            "sgr": sgr(plan, [s["rate"] for s in subtasks])}
+    return EvalResult(task=task, model=model, trials=len(outcomes), plan=list(plan), subtasks=subtasks,
+                      lh_success=RateResult(lh.value, [lh.low, lh.high], lh.n),
+                      sgr=sgr(plan, [s.rate for s in subtasks]), confidence=confidence,
+                      mean_execution_time=None if math.isnan(mean_time) else mean_time,
+                      execution_time_ci=None if math.isnan(mean_time) else [low, high])

@@ -13,14 +13,23 @@ from __future__ import annotations
 import torch
 import torch.nn as nn
 
-from detach.config_schema import ModelCfg
-from detach.models.layout import ObsLayout, align_time
+from dataclasses import dataclass
+
+from detach.models.layout import ObsLayout, TrunkModelCfg, align_time
+
+
+@dataclass(frozen=True)
+class CMLCfg(TrunkModelCfg):
+    """The CML baseline (kind `cml`)."""
+
+    kind: str = "cml"
+    gru_hidden: int = 256
 
 
 class CMLTrunk(nn.Module):
     """Named groups -> [h_T (gru_hidden); task; extras] [N, out_dim]."""
 
-    def __init__(self, layout: ObsLayout, cfg: ModelCfg) -> None:
+    def __init__(self, layout: ObsLayout, cfg: CMLCfg) -> None:
         super().__init__()
         layout.require("self", "env", "task")
         self.layout = layout

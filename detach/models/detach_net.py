@@ -17,16 +17,40 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import ClassVar
 
 import torch
 import torch.nn as nn
 
-from detach.config_schema import ModelCfg, RegularizerCfg
-from detach.models import losses as L
+from detach.models import losses
 from detach.models.attention import TransformerEncoder
-from detach.models.encoders import EnvEncoder, FrameDecoder, SelfEncoder, TemporalPredictor
-from detach.models.fusion import AdaptiveFusion, FusionOutput
-from detach.models.layout import ObsLayout
+from detach.models.encoders import (
+    EnvEncoder, EnvEncoderCfg, FrameDecoder, SelfEncoder, SelfEncoderCfg, TemporalPredictor,
+)
+from detach.models.fusion import AdaptiveFusion, FusionCfg, FusionOutput
+from detach.models.layout import ObsLayout, TrunkModelCfg
+from detach.models.losses import RegularizerCfg
+
+
+@dataclass(frozen=True)
+class DetachCfg(TrunkModelCfg):
+    """DETACH and its ablations A1/A2 (kind `detach`)."""
+
+    kind: str = "detach"
+    d_model: int = 64
+    num_layers: int = 4
+    num_heads: int = 8
+    ff_dim: int = 256
+    use_env_encoder: bool = True
+    """False = ablation A1 (env frames through a linear projection)."""
+    use_self_encoder: bool = True
+    """False = ablation A2 (self frames through a linear projection)."""
+    env_encoder: EnvEncoderCfg = EnvEncoderCfg()
+    self_encoder: SelfEncoderCfg = SelfEncoderCfg()
+    fusion: FusionCfg = FusionCfg()
+    regularizers: RegularizerCfg = RegularizerCfg()
+
+    staged: ClassVar[bool] = True
 
 
 class ParamAnchor(nn.Module):
@@ -67,7 +91,7 @@ class DetachFeatures:
 class DetachTrunk(nn.Module):
     """Named groups {self [N,T,d], env [N,T,d], task [N,S], extras [N,D]} -> latent [N, out_dim]."""
 
-    def __init__(self, layout: ObsLayout, cfg: ModelCfg) -> None:
+    def __init__(self, layout: ObsLayout, cfg: DetachCfg) -> None:
         super().__init__()
         layout.require("self", "env", "task")
         self.layout = layout
@@ -141,7 +165,7 @@ class DetachTrunk(nn.Module):
             return x_self.new_zeros(())
         z = self.self_encoder(torch.cat([x_self[:, :-1], x_self[:, 1:]], dim=0)).mean(1)
         z_prev, z_next = z.chunk(2, dim=0)
-        return L.mse(self.predictor(z_prev), z_next.detach())
+        return losses.mse(self.predictor(z_prev), z_next.detach())
 
     def aux_losses(
         self, groups: dict[str, torch.Tensor], reg: RegularizerCfg, feats: DetachFeatures | None = None
@@ -152,26 +176,28 @@ class DetachTrunk(nn.Module):
         feats = self.encode(groups) if feats is None else feats
         fo = feats.fusion
         zero = x_env.new_zeros(())
-        rec_env = L.mse(self.env_decoder(feats.z_env), x_env) if self.env_decoder else zero
-        rec_self = L.mse(self.self_decoder(feats.z_self), x_self) if self.self_decoder else zero
+        rec_env = losses.mse(self.env_decoder(feats.z_env), x_env) if self.env_decoder else zero
+        rec_self = losses.mse(self.self_decoder(feats.z_self), x_self) if self.self_decoder else zero
         z_env, z_self = feats.z_env.mean(1), feats.z_self.mean(1)
-        mi = L.gaussian_mi(z_env, z_self)
-        r1 = L.param_l2(self.env_encoder.parameters(), self.env_anchor.anchors()) if self._anchored("env") else None
-        r2 = L.param_l2(self.self_encoder.parameters(), self.self_anchor.anchors()) if self._anchored("self") else None
+        mi = losses.gaussian_mi(z_env, z_self)
+        r1 = (losses.param_l2(self.env_encoder.parameters(), self.env_anchor.anchors())
+              if self._anchored("env") else None)
+        r2 = (losses.param_l2(self.self_encoder.parameters(), self.self_anchor.anchors())
+              if self._anchored("self") else None)
         return {
             "L_env": rec_env,
             "L_self": self.temporal_prediction_loss(x_self),
-            "R_decouple": L.r_decouple(z_env, z_self),
+            "R_decouple": losses.r_decouple(z_env, z_self),
             "MI": mi,
-            "R_temporal": L.temporal_consistency(feats.z_self) if self.self_encoder else zero,
+            "R_temporal": losses.temporal_consistency(feats.z_self) if self.self_encoder else zero,
             "R_semantic_env": rec_env,
             "R_semantic_self": rec_self,
             "R_semantic": reg.semantic_env_weight * rec_env + reg.semantic_self_weight * rec_self,
-            "L_fusion_quality": L.fusion_consistency(fo.cross, fo.env_aligned, feats.f_self)
+            "L_fusion_quality": losses.fusion_consistency(fo.cross, fo.env_aligned, feats.f_self)
             + reg.lambda_disentangle * mi,
             "R1": r1 if r1 is not None else zero,
             "R2": r2 if r2 is not None else zero,
-            "R3": L.fusion_diversity([fo.cross, fo.gate, fo.moe], reg.r3_mode),
+            "R3": losses.fusion_diversity([fo.cross, fo.gate, fo.moe], reg.r3_mode),
         }
 
     # ----- parameter groups for the progressive protocol -----

@@ -1,20 +1,17 @@
 """ModelCfg + ObsSpec -> rsl-rl actor/critic configs, or the models themselves.
 
-`rsl_rl_model_cfgs` gives the `actor` and `critic` entries of rsl-rl's train_cfg (plain data
-only: they are deep-copied by rsl-rl and may be dumped to YAML). `build_actor_critic` builds
-both through rsl-rl's own `resolve_class` path, for tests and evaluation.
+`rsl_rl_model_cfgs` gives the `actor` and `critic` entries of rsl-rl's train_cfg (the typed
+model config and obs spec travel as objects; rsl-rl deep-copies them). `build_actor_critic`
+builds both through rsl-rl's own `resolve_class` path, for tests and evaluation.
 Observation sets: {"actor": ["self", "env", "task"], "critic": ["self", "env", "task", "critic"]}.
 """
 
 from __future__ import annotations
 
-from typing import Any
-
 from rsl_rl.utils import resolve_class
 from tensordict import TensorDict
 
-from detach.config_schema import EnvCfg, ModelCfg, action_std
-from detach.config_validate import to_plain
+from detach.config_schema import ModelCfg
 from detach.envs.obs_spec import ObsSpec
 from detach.models.rsl_rl_models import (
     CMLModel,
@@ -25,12 +22,8 @@ from detach.models.rsl_rl_models import (
     link_shared_trunk,
 )
 
-MODEL_CLASSES: dict[str, type[StructuredModel]] = {
-    "detach": DetachModel,
-    "tokenhsi": TokenHSIModel,
-    "cml": CMLModel,
-    "mlp": MLPBaselineModel,
-}
+MODEL_CLASSES: tuple[type[StructuredModel], ...] = (DetachModel, TokenHSIModel, CMLModel, MLPBaselineModel)
+"""The networks of the study; each declares the config class it is built from."""
 
 DEFAULT_OBS_GROUPS: dict[str, list[str]] = {
     "actor": ["self", "env", "task"],
@@ -45,25 +38,32 @@ def class_path(cls: type) -> str:
     return f"{cls.__module__}:{cls.__qualname__}"
 
 
-def rsl_rl_model_cfgs(model_cfg: ModelCfg, obs_spec: ObsSpec) -> tuple[dict, dict]:
+def model_class(model_cfg: ModelCfg) -> type[StructuredModel]:
+    """The network of a model config: the class whose `config_class` it is (most derived)."""
+    for cls in MODEL_CLASSES:
+        if type(model_cfg) is cls.config_class:
+            return cls
+    network = getattr(model_cfg, "network", None)
+    if network is not None:
+        return network
+    raise ValueError(f"no network for model kind '{model_cfg.kind}' ({type(model_cfg).__name__}); a plug-in "
+                     f"config class names its network as the class attribute `network`")
+
+
+def rsl_rl_model_cfgs(model_cfg: ModelCfg, obs_spec: ObsSpec, default_std: float) -> tuple[dict, dict]:
     """(actor_cfg, critic_cfg) for rsl-rl's train_cfg["actor"] / ["critic"].
 
     The actor gets a Gaussian action distribution with state-independent std
-    (`init_noise_std`); the critic gets one value head per `critic_objectives` entry (its
-    forward returns their weighted sum [N, 1]; see `rsl_rl_models`).
+    (`init_noise_std`, or `default_std` -- the character's -- when it is None); the critic gets
+    one value head per `critic_objectives` entry when there are several (see `rsl_rl_models`).
     """
-    if model_cfg.kind not in MODEL_CLASSES:
-        raise ValueError(f"model.kind must be one of {sorted(MODEL_CLASSES)}, got {model_cfg.kind!r}")
-    common = {
-        "class_name": class_path(MODEL_CLASSES[model_cfg.kind]),
-        "obs_spec": obs_spec.to_dict(),
-        "model": to_plain(model_cfg),
-    }
-    # A resolved run config has the number; a bare ModelCfg gets the default character's.
-    std = action_std(model_cfg.init_noise_std, EnvCfg.character)
+    common = {"class_name": class_path(model_class(model_cfg)), "obs_spec": obs_spec, "model": model_cfg}
+    std = default_std if model_cfg.init_noise_std is None else model_cfg.init_noise_std
     actor = {**common, "distribution_cfg": {"class_name": GAUSSIAN, "init_std": std}}
-    critic = {**to_plain(common), "value_objectives": list(model_cfg.critic_objectives)}
-    return to_plain(actor), critic
+    critic = dict(common)
+    if len(model_cfg.critic_objectives) > 1:
+        critic["value_objectives"] = list(model_cfg.critic_objectives)
+    return actor, critic
 
 
 def build_actor_critic(
@@ -72,10 +72,11 @@ def build_actor_critic(
     obs: TensorDict,
     obs_groups: dict[str, list[str]] | None = None,
     num_actions: int | None = None,
+    default_std: float = 1.0,
 ) -> tuple[StructuredModel, StructuredModel]:
     """Instantiate (actor, critic) as rsl-rl's PPO.construct_algorithm + AmpPPO do (trunk linked)."""
     groups = obs_groups or DEFAULT_OBS_GROUPS
-    actor_cfg, critic_cfg = rsl_rl_model_cfgs(model_cfg, obs_spec)
+    actor_cfg, critic_cfg = rsl_rl_model_cfgs(model_cfg, obs_spec, default_std)
     actor_cls, actor_kwargs = resolve_class(actor_cfg)
     critic_cls, critic_kwargs = resolve_class(critic_cfg)
     n_act = obs_spec.num_actions if num_actions is None else num_actions

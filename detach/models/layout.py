@@ -9,11 +9,7 @@ groups `self` and `env` from [N, T*d] to [N, T, d] (time-major, step 0 oldest; s
 
 from __future__ import annotations
 
-import dataclasses
-import types
-import typing
 from dataclasses import dataclass
-from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -23,6 +19,15 @@ from detach.config_schema import ModelCfg
 from detach.envs.obs_spec import ObsSpec
 
 HISTORY_GROUPS: tuple[str, ...] = ("self", "env")
+
+
+@dataclass(frozen=True)
+class TrunkModelCfg(ModelCfg):
+    """Config of a model with a trunk the critic may share (every kind but the flat MLP)."""
+
+    shared_trunk: bool = False
+    """The critic reads the actor's trunk: its value head sees [h; privileged groups] (the
+    paper's V(s) = ValueHead(h_transformer)), so one trunk is trained and run per update."""
 
 
 @dataclass(frozen=True)
@@ -90,34 +95,3 @@ def align_time(x: torch.Tensor, steps: int) -> torch.Tensor:
         return x
     y = F.interpolate(x.transpose(1, 2), size=steps, mode="linear", align_corners=True)
     return y.transpose(1, 2)
-
-
-def _build(tp: Any, value: Any) -> Any:
-    """Plain YAML/JSON-like data -> the (possibly nested, frozen) dataclass type `tp`."""
-    if dataclasses.is_dataclass(tp):
-        if isinstance(value, tp):
-            return value
-        hints = typing.get_type_hints(tp)
-        names = {f.name for f in dataclasses.fields(tp)}
-        unknown = set(value) - names
-        if unknown:
-            raise ValueError(f"unknown {tp.__name__} keys {sorted(unknown)}; valid: {sorted(names)}")
-        return tp(**{k: _build(hints[k], v) for k, v in value.items()})
-    origin = typing.get_origin(tp)
-    if origin is tuple and isinstance(value, (list, tuple)):
-        args = typing.get_args(tp)
-        inner = args[0] if args else Any
-        return tuple(_build(inner, v) for v in value)
-    if origin in (typing.Union, types.UnionType) and value is not None:
-        inner = [a for a in typing.get_args(tp) if a is not type(None)]
-        return _build(inner[0], value)
-    return value
-
-
-def model_cfg_from_dict(data: dict | ModelCfg) -> ModelCfg:
-    """`dataclasses.asdict(ModelCfg)` (lists allowed for tuples) -> ModelCfg."""
-    return _build(ModelCfg, data)
-
-
-def obs_spec_from_dict(data: dict | ObsSpec) -> ObsSpec:
-    return data if isinstance(data, ObsSpec) else ObsSpec(**data)

@@ -12,14 +12,30 @@ from __future__ import annotations
 import torch
 import torch.nn as nn
 
+from dataclasses import dataclass
+
 from detach.config_schema import ModelCfg
 from detach.models.layout import HISTORY_GROUPS, ObsLayout
+
+
+@dataclass(frozen=True)
+class MLPCfg(ModelCfg):
+    """The flat MLP baseline (kind `mlp`)."""
+
+    kind: str = "mlp"
+    history_frames: int = 0
+    """The newest frames of each history group the network reads (0 = all T)."""
+
+    def invalid(self) -> tuple[str, str] | None:
+        if self.history_frames < 0:
+            return "history_frames", f"expected >= 0 (0 = every frame), found {self.history_frames}"
+        return None
 
 
 class FlatTrunk(nn.Module):
     """Named groups -> [N, sum of group widths] in the obs set's group order."""
 
-    def __init__(self, layout: ObsLayout, cfg: ModelCfg | None = None) -> None:
+    def __init__(self, layout: ObsLayout, cfg: MLPCfg | None = None) -> None:
         super().__init__()
         self.layout = layout
         self.frames = cfg.history_frames if cfg is not None else 0

@@ -40,26 +40,29 @@ from rsl_rl.models import MLPModel
 from rsl_rl.modules import HiddenState
 from tensordict import TensorDict
 
-from detach.models.cml import CMLTrunk
-from detach.models.detach_net import DetachFeatures, DetachTrunk
-from detach.models.layout import ObsLayout, model_cfg_from_dict, obs_spec_from_dict
+from detach.config_schema import ModelCfg
+from detach.envs.obs_spec import ObsSpec
+from detach.models.cml import CMLCfg, CMLTrunk
+from detach.models.detach_net import DetachCfg, DetachFeatures, DetachTrunk
+from detach.models.layout import ObsLayout
 from detach.models.losses import combine_aux_losses
-from detach.models.mlp import FlatTrunk
-from detach.models.tokenhsi import TokenHSITrunk
+from detach.models.mlp import FlatTrunk, MLPCfg
+from detach.models.tokenhsi import TokenHSICfg, TokenHSITrunk
 
 
 class StructuredModel(MLPModel):
     """MLPModel whose latent is `trunk(named normalised groups)`; optional multi-head value output.
 
     Args (beyond rsl-rl's obs, obs_groups, obs_set, output_dim):
-        obs_spec: `ObsSpec.to_dict()`, to reshape the history groups.
-        model: `dataclasses.asdict(ModelCfg)`; `adapter_units`, `activation` and
+        obs_spec: the env's `ObsSpec`, to reshape the history groups.
+        model: the typed model config (`config_class`); `adapter_units`, `activation` and
             `obs_normalization` configure the head MLP and the normaliser.
         distribution_cfg: rsl-rl distribution (actor only).
         value_objectives: names of the value heads (critic only); None = one plain output.
     """
 
     trunk_class: ClassVar[type[nn.Module]] = FlatTrunk
+    config_class: ClassVar[type[ModelCfg]] = MLPCfg
     sum_value_heads: bool = True
     """With several value heads, forward returns their weighted sum [N, 1] (stock PPO); a
     trainer with per-objective GAE (`detach.train.amp_ppo.AmpPPO`) sets False to get [N, K]."""
@@ -70,15 +73,17 @@ class StructuredModel(MLPModel):
         obs_groups: dict[str, list[str]],
         obs_set: str,
         output_dim: int,
-        obs_spec: dict,
-        model: dict,
+        obs_spec: ObsSpec,
+        model: ModelCfg,
         distribution_cfg: dict | None = None,
         value_objectives: Sequence[str] | None = None,
     ) -> None:
-        cfg = model_cfg_from_dict(model)
-        spec = obs_spec_from_dict(obs_spec)
+        if not isinstance(model, self.config_class):
+            raise TypeError(f"{type(self).__name__} needs a {self.config_class.__name__}, got {type(model).__name__}")
+        cfg, spec = model, obs_spec
         layout = ObsLayout.from_obs(obs, obs_groups[obs_set], spec)
-        reads_actor_trunk = cfg.shared_trunk and distribution_cfg is None and obs_set != "actor"
+        shared = getattr(cfg, "shared_trunk", False)
+        reads_actor_trunk = shared and distribution_cfg is None and obs_set != "actor"
         trunk_layout = layout
         if reads_actor_trunk:
             missing = [g for g in obs_groups["actor"] if g not in layout.groups]
@@ -239,6 +244,7 @@ class DetachModel(StructuredModel):
     """
 
     trunk_class = DetachTrunk
+    config_class = DetachCfg
     trunk: DetachTrunk
     _forward_cache: tuple[TensorDict, dict[str, torch.Tensor], DetachFeatures] | None = None
 
@@ -295,11 +301,6 @@ class DetachModel(StructuredModel):
             if mine is not None:
                 mine.load_state_dict(theirs.state_dict())
 
-    def fusion_weights(self) -> dict[str, float]:
-        """α, β, γ of f_fused, for logging."""
-        f = self.trunk.fusion
-        return {"alpha": f.alpha.item(), "beta": f.beta.item(), "gamma": f.gamma.item()}
-
 
 def link_shared_trunk(actor: nn.Module, critic: nn.Module) -> None:
     """Give a shared-trunk critic the actor's trunk; a no-op for any other pair."""
@@ -311,12 +312,14 @@ class TokenHSIModel(StructuredModel):
     """TokenHSI baseline: per-group tokenizers, action token, transformer, MLP head."""
 
     trunk_class = TokenHSITrunk
+    config_class = TokenHSICfg
 
 
 class CMLModel(StructuredModel):
     """CML baseline: GRU over the observation window; use with value_objectives for its multi-critic."""
 
     trunk_class = CMLTrunk
+    config_class = CMLCfg
 
 
 class MLPBaselineModel(StructuredModel):

@@ -15,15 +15,28 @@ import torch
 import torch.nn as nn
 from rsl_rl.modules import MLP
 
-from detach.config_schema import ModelCfg
+from dataclasses import dataclass
+
 from detach.models.attention import TransformerEncoder
-from detach.models.layout import ObsLayout
+from detach.models.layout import ObsLayout, TrunkModelCfg
+
+
+@dataclass(frozen=True)
+class TokenHSICfg(TrunkModelCfg):
+    """The TokenHSI baseline (kind `tokenhsi`)."""
+
+    kind: str = "tokenhsi"
+    d_model: int = 64
+    num_layers: int = 4
+    num_heads: int = 8
+    ff_dim: int = 256
+    tokenizer_units: tuple[int, ...] = (256, 128)
 
 
 class TokenHSITrunk(nn.Module):
     """Named groups -> action-token feature [N, d_model]."""
 
-    def __init__(self, layout: ObsLayout, cfg: ModelCfg) -> None:
+    def __init__(self, layout: ObsLayout, cfg: TokenHSICfg) -> None:
         super().__init__()
         layout.require("self", "env", "task")
         self.layout = layout

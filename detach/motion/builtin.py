@@ -29,7 +29,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from detach.envs.humanoid import BODY_NAMES, DOF_NAMES, FLOOR_TO_SOLE, dof_ranges
+from detach.character.body import BODY_NAMES, DOF_NAMES, FLOOR_TO_SOLE, dof_ranges
 from detach.motion.clip import MotionClip, clip_from_arrays
 from detach.motion.gait import flat_foot_ankle, leg_cycle, pchip, stance_twist, two_link_ik
 from detach.motion.kinematics import humanoid_fk

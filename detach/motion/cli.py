@@ -17,7 +17,7 @@ from pathlib import Path
 from detach.motion.bvh_import import BvhError
 from detach.motion.clip import ClipError, MotionClip, load_clips, save_clip
 from detach.motion.retarget import RetargetError, available_maps
-from detach.motion.skills import SKILLS
+from detach.motion.labels import MOTION_LABELS
 
 _USER_ERRORS = (BvhError, ClipError, RetargetError)
 
@@ -29,7 +29,7 @@ def _parser() -> argparse.ArgumentParser:
     imp.add_argument("file", help="BVH file")
     imp.add_argument("--map", default="cmu",
                      help=f"joint map: a shipped name ({', '.join(available_maps())}) or a YAML path (default cmu)")
-    imp.add_argument("--skill", default="walk", help=f"skill label, one of {', '.join(SKILLS)} (default walk)")
+    imp.add_argument("--skill", default="walk", help=f"clip label, one of {', '.join(MOTION_LABELS)} (default walk)")
     imp.add_argument("--out", default=".", help="output folder (default: current folder)")
     imp.add_argument("--scale", type=float, default=None, help="metres per BVH unit (default: the map's)")
     imp.add_argument("--fps", type=float, default=None, help="resample to this frame rate (default: the BVH's)")
@@ -57,8 +57,8 @@ def main(argv: list[str] | None = None) -> int:
 def _import(args) -> int:
     from detach.motion.retarget import import_bvh
 
-    if args.skill not in SKILLS:
-        raise ClipError(f"{args.file}: unknown skill {args.skill!r}; expected one of {', '.join(SKILLS)}")
+    if args.skill not in MOTION_LABELS:
+        raise ClipError(f"{args.file}: unknown skill label {args.skill!r}; expected one of {', '.join(MOTION_LABELS)}")
     clip, clipped = import_bvh(args.file, args.map, skill=args.skill, name=args.name, scale=args.scale, fps=args.fps)
     out = save_clip(clip, Path(args.out) / f"{clip.name}.npz")
     travel = float(((clip.root_pos[-1, :2] - clip.root_pos[0, :2]) ** 2).sum() ** 0.5)

@@ -6,7 +6,7 @@ File format (`save_clip` / `load_clip`), one clip per `.npz`; frame k is at time
 | ---            | ---          | --- |
 | format_version | int          | `FORMAT_VERSION` |
 | name           | str          | clip name (unique within a library) |
-| skill          | str          | one of `detach.motion.skills.SKILLS` |
+| skill          | str          | one of `detach.motion.labels.MOTION_LABELS` |
 | fps            | float        | frames per second (> 0) |
 | root_pos       | [F, 3]       | pelvis origin, world frame, metres (Z up, floor at z = 0) |
 | root_quat      | [F, 4]       | pelvis orientation, world frame, wxyz (unit) |
@@ -31,8 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from detach.envs.humanoid import BODY_NAMES, DOF_NAMES
-from detach.motion.skills import SKILLS
+from detach.character.body import BODY_NAMES, DOF_NAMES
+from detach.motion.labels import MOTION_LABELS
 
 FORMAT_VERSION = 1
 NUM_DOF = len(DOF_NAMES)
@@ -82,8 +82,8 @@ def _validate(c: MotionClip, where: str) -> None:
 
     if not isinstance(c.name, str) or not c.name:
         raise bad("name must be a non-empty string")
-    if c.skill not in SKILLS:
-        raise bad(f"unknown skill {c.skill!r}; expected one of {', '.join(SKILLS)}")
+    if c.skill not in MOTION_LABELS:
+        raise bad(f"unknown skill label {c.skill!r}; expected one of {', '.join(MOTION_LABELS)}")
     if not (isinstance(c.fps, (int, float, np.floating, np.integer)) and np.isfinite(c.fps) and c.fps > 0):
         raise bad(f"fps must be a positive number, got {c.fps!r}")
     f = np.shape(c.root_pos)[0] if np.ndim(c.root_pos) >= 1 else 0

@@ -1,6 +1,6 @@
 """Procedural motion primitives as pure functions of phase or time (radians, metres, seconds).
 
-Conventions of our humanoid (see `detach.envs.humanoid`): hinge `*_y` angles are rotations
+Conventions of our humanoid (see `detach.character.body`): hinge `*_y` angles are rotations
 about the body's +Y (the character's left). A positive hip/knee/shoulder `y` swings the limb
 backwards (hip y < 0 is flexion, knee y > 0 is flexion, elbow y < 0 is flexion); a positive
 ankle `y` points the toes down. Sagittal-plane geometry below uses (x forward, z up).

@@ -14,7 +14,8 @@ from functools import lru_cache
 import mujoco
 import numpy as np
 
-from detach.envs.humanoid import BODY_NAMES, DOF_NAMES, build_humanoid_model
+from detach.character import build_character_model
+from detach.character.body import BODY_NAMES, DOF_NAMES
 
 FOOT_BODIES = ("left_foot", "right_foot")
 """Foot order used by `FKResult.foot_*` arrays (index 0 = left)."""
@@ -39,7 +40,7 @@ class HumanoidFK:
     """Owns one humanoid MjModel (free root, no floor) and MjData for kinematic queries."""
 
     def __init__(self) -> None:
-        self.model = build_humanoid_model("humanoid", with_floor=False)
+        self.model = build_character_model("humanoid", with_floor=False)
         self.data = mujoco.MjData(self.model)
         m = self.model
         self.body_ids = np.array([m.body(n).id for n in BODY_NAMES])

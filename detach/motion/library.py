@@ -25,11 +25,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from detach.envs.humanoid import BODY_NAMES, KEY_BODIES
-from detach.envs.torch_math import quat_conj, quat_mul
+from detach.character.body import BODY_NAMES, KEY_BODIES
+from detach.torch_math import quat_conj, quat_mul
 from detach.motion.clip import ClipError, MotionClip, load_clip, load_clips
 from detach.motion.rotations import quat_continuous
-from detach.motion.skills import SKILL_GROUPS, SKILLS
+from detach.motion.labels import MOTION_LABELS
 from detach.motion.state import MotionState
 
 ClipSource = MotionClip | str | os.PathLike
@@ -74,8 +74,8 @@ class MotionLib:
         self.clip_fps = t(fps)
         self.clip_length = t((frames - 1) / fps).to(dt)
         """[C] clip durations, seconds."""
-        self.clip_skill = torch.as_tensor([SKILLS.index(c.skill) for c in cs], dtype=torch.long, device=dev)
-        """[C] index of each clip's label in SKILLS."""
+        self.clip_skill = torch.as_tensor([MOTION_LABELS.index(c.skill) for c in cs], dtype=torch.long, device=dev)
+        """[C] index of each clip's label in MOTION_LABELS."""
         # central differences inside each clip (one-sided at its ends), in float64
         clip_of = torch.repeat_interleave(torch.arange(len(cs), device=dev), self.clip_frames)
         idx = torch.arange(int(frames.sum()), device=dev)
@@ -124,17 +124,17 @@ class MotionLib:
 
     @property
     def skills_present(self) -> list[str]:
-        return [s for s in SKILLS if any(c.skill == s for c in self.clips)]
+        return [s for s in MOTION_LABELS if any(c.skill == s for c in self.clips)]
 
     def set_skill_weights(self, skill_weights: dict[str, float] | None) -> None:
         """Set sampling probabilities per label (normalised; labels without clips are ignored)."""
         present = self.skills_present
         if skill_weights is None:
             skill_weights = {s: 1.0 for s in present}
-        unknown = [k for k in skill_weights if k not in SKILLS]
+        unknown = [k for k in skill_weights if k not in MOTION_LABELS]
         if unknown:
             raise ValueError(f"skill_weights: unknown skill(s) {', '.join(map(repr, unknown))}; "
-                             f"expected some of {', '.join(SKILLS)}")
+                             f"expected some of {', '.join(MOTION_LABELS)}")
         bad = {k: v for k, v in skill_weights.items() if not (float(v) >= 0.0 and np.isfinite(float(v)))}
         if bad:
             raise ValueError(f"skill_weights: weights must be finite and >= 0, got {bad}")
@@ -145,7 +145,7 @@ class MotionLib:
 
     def clip_probs(self, skills: Sequence[str] | str | None = None) -> torch.Tensor:
         """[C] probability of drawing each clip, optionally restricted to some labels (or to a
-        task name of SKILL_GROUPS, e.g. "carry"); label weights are renormalised in the subset."""
+        single label); label weights are renormalised in the subset."""
         subset = _skill_subset(skills, self.skills_present)
         if subset not in self._probs_cache:
             w = np.zeros(self.num_clips)
@@ -239,12 +239,12 @@ def _skill_subset(skills, present: list[str]) -> tuple[str, ...]:
     if skills is None:
         return tuple(present)
     if isinstance(skills, str):
-        skills = SKILL_GROUPS.get(skills, [skills])
-    unknown = [s for s in skills if s not in SKILLS]
+        skills = [skills]
+    unknown = [s for s in skills if s not in MOTION_LABELS]
     if unknown:
-        raise ValueError(f"unknown skill(s) {', '.join(map(repr, unknown))}; expected labels from "
-                         f"{', '.join(SKILLS)} or a task from {', '.join(SKILL_GROUPS)}")
-    return tuple(s for s in SKILLS if s in skills and s in present)
+        raise ValueError(f"unknown skill label(s) {', '.join(map(repr, unknown))}; expected labels from "
+                         f"{', '.join(MOTION_LABELS)}")
+    return tuple(s for s in MOTION_LABELS if s in skills and s in present)
 
 
 def _slerp(q0: torch.Tensor, q1: torch.Tensor, w: torch.Tensor) -> torch.Tensor:

@@ -80,7 +80,7 @@ def ground_root(rel: FKResult, terrain: Terrain, start_xy: tuple[float, float] =
 
 
 def _body(rel: FKResult, name: str) -> np.ndarray:
-    from detach.envs.humanoid import BODY_NAMES
+    from detach.character.body import BODY_NAMES
 
     return rel.body_pos[:, BODY_NAMES.index(name)]
 

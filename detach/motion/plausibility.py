@@ -7,13 +7,14 @@ with MuJoCo's exact geom distance (`mj_geomDistance`) between non-adjacent bodie
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from functools import lru_cache
 
 import mujoco
 import numpy as np
 
-from detach.envs.humanoid import BODY_NAMES, build_humanoid_spec, dof_ranges
+from detach.character import build_character_spec
+from detach.character.body import BODY_NAMES, dof_ranges
 from detach.motion.clip import MotionClip
 from detach.motion.kinematics import humanoid_fk
 from detach.motion.placement import Terrain
@@ -52,9 +53,6 @@ class Plausibility:
     worst_prop_body: str = ""
     """The body (and frame) of min_prop_distance."""
 
-    def as_dict(self) -> dict:
-        return asdict(self)
-
 
 def foot_clearance(clip: MotionClip) -> np.ndarray:
     """[F, 2] lowest point of each foot box (left, right) above the support under it."""
@@ -89,7 +87,7 @@ def check_clip(clip: MotionClip, self_pairs=SELF_PAIRS) -> Plausibility:
 
 @lru_cache(maxsize=8)
 def _model_with_props(props_key: tuple) -> tuple[mujoco.MjModel, list[int]]:
-    spec = build_humanoid_spec("humanoid", with_floor=False)
+    spec = build_character_spec("humanoid", with_floor=False)
     for i, (c, h) in enumerate(props_key):
         g = spec.worldbody.add_geom(name=f"prop{i}")
         g.type = mujoco.mjtGeom.mjGEOM_BOX

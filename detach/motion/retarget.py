@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from detach.envs.humanoid import BODY_NAMES, JOINT_GROUPS, dof_ranges
+from detach.character.body import BODY_NAMES, JOINT_GROUPS, dof_ranges
 from detach.motion.bvh_import import BvhData, read_bvh
 from detach.motion.clip import MotionClip, clip_from_arrays
 from detach.motion.kinematics import humanoid_fk

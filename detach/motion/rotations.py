@@ -3,7 +3,7 @@
 Quaternions are wxyz (MuJoCo's order). Matrices act on column vectors: v_world = R @ v_body.
 Euler "xyz" means R = Rx(a) @ Ry(b) @ Rz(c), which is how MuJoCo composes the three hinges
 x, y, z of one body (checked in tests/test_motion_retarget.py against mj_kinematics).
-The torch counterparts used at training time live in `detach.envs.torch_math`.
+The torch counterparts used at training time live in `detach.torch_math`.
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ from dataclasses import dataclass, fields
 
 import torch
 
-from detach.envs.torch_math import quat_rotate_inverse
+from detach.torch_math import quat_rotate_inverse
 
 
 @dataclass

@@ -1,8 +1,8 @@
-"""A run folder: the only thing a run leaves behind and the only thing the dashboard reads.
+"""A run folder on disk: creating it, its paths, its status, its checkpoints.
 
-runs/<YYYYmmdd-HHMMSS>-<task>-<model>-s<seed>/ holds config.yaml, status.json, stdout.log,
-log.mcap, checkpoints/ and eval.json. Every JSON/YAML file is replaced atomically (write a
-temporary file, then rename), so a reader never sees half a file.
+The format (file names, status.json, eval.json) is `detach.run_contract`. Every JSON/YAML
+file is replaced atomically (write a temporary file, then rename), so a reader never sees
+half a file.
 """
 
 from __future__ import annotations
@@ -17,9 +17,12 @@ from typing import Any, Literal
 
 from detach.config import dump, load_run_config
 from detach.config_schema import RunConfig
+from detach.run_contract import (
+    CHECKPOINT_DIR, CONFIG_FILE, EVAL_FILE, LOG_FILE, RUN_MARKERS, RUN_STATES, STATUS_FILE, STDOUT_FILE,
+    EvalResult, Status, checkpoint_iteration,
+)
 
 RunState = Literal["queued", "running", "finished", "failed", "interrupted"]
-STATES: tuple[str, ...] = ("queued", "running", "finished", "failed", "interrupted")
 
 
 def atomic_write_text(path: Path, text: str) -> None:
@@ -53,27 +56,27 @@ class RunFolder:
 
     @property
     def config_path(self) -> Path:
-        return self.path / "config.yaml"
+        return self.path / CONFIG_FILE
 
     @property
     def status_path(self) -> Path:
-        return self.path / "status.json"
+        return self.path / STATUS_FILE
 
     @property
     def log_path(self) -> Path:
-        return self.path / "log.mcap"
+        return self.path / LOG_FILE
 
     @property
     def stdout_path(self) -> Path:
-        return self.path / "stdout.log"
+        return self.path / STDOUT_FILE
 
     @property
     def eval_path(self) -> Path:
-        return self.path / "eval.json"
+        return self.path / EVAL_FILE
 
     @property
     def checkpoints(self) -> Path:
-        return self.path / "checkpoints"
+        return self.path / CHECKPOINT_DIR
 
     @classmethod
     def create(cls, parent: Path, cfg: RunConfig, now: float | None = None) -> "RunFolder":
@@ -97,40 +100,40 @@ class RunFolder:
     def config(self) -> RunConfig:
         return load_run_config(self.config_path)
 
-    def status(self) -> dict[str, Any]:
-        return json.loads(self.status_path.read_text(encoding="utf-8"))
+    def status(self) -> Status:
+        """status.json (OSError if missing, ValueError if malformed)."""
+        return Status.from_json(json.loads(self.status_path.read_text(encoding="utf-8")))
 
-    def set_state(self, state: RunState, **fields: Any) -> dict[str, Any]:
-        """Update status.json (state, pid, iteration, started, updated, error, ...)."""
-        if state not in STATES:
+    def set_state(self, state: RunState, **fields: Any) -> Status:
+        """Update status.json (state, pid, iteration, started, updated, error, cell)."""
+        if state not in RUN_STATES:
             raise ValueError(f"unknown run state {state!r}")
         try:
             status = self.status()
         except (OSError, ValueError):
-            status = {"started": None, "iteration": 0, "error": None}
+            status = Status(state)
         now = time.time()
-        status.update(fields)
-        status["state"] = state
-        status["updated"] = now
-        if state == "running" and not status.get("started"):
-            status["started"] = now
-        status.setdefault("pid", os.getpid())
-        if state == "running":
-            status["pid"] = os.getpid()
-        atomic_write_json(self.status_path, status)
+        for key, value in fields.items():
+            setattr(status, key, value)
+        status.state, status.updated = state, now
+        if state == "running" and not status.started:
+            status.started = now
+        if state == "running" or status.pid is None:
+            status.pid = os.getpid()
+        atomic_write_json(self.status_path, status.to_json())
         return status
 
     def latest_checkpoint(self) -> Path | None:
         """Checkpoint with the highest iteration number (model_<iter>.pt)."""
-        found = sorted(self.checkpoints.glob("model_*.pt"),
-                       key=lambda p: int(p.stem.split("_")[-1]) if p.stem.split("_")[-1]
-                       .isdigit() else -1)
-        return found[-1] if found else None
+        found = [(checkpoint_iteration(p.name), p) for p in self.checkpoints.glob("*.pt")]
+        found = sorted((it, p) for it, p in found if it is not None)
+        return found[-1][1] if found else None
 
-    def eval_result(self) -> dict[str, Any] | None:
+    def eval_result(self) -> EvalResult | None:
+        """eval.json (None if missing; ValueError if malformed)."""
         if not self.eval_path.exists():
             return None
-        return json.loads(self.eval_path.read_text(encoding="utf-8"))
+        return EvalResult.from_json(json.loads(self.eval_path.read_text(encoding="utf-8")), str(self.eval_path))
 
 
 def find_runs(parent: Path) -> list[RunFolder]:
@@ -138,4 +141,4 @@ def find_runs(parent: Path) -> list[RunFolder]:
     if not parent.is_dir():
         return []
     return [RunFolder(p) for p in sorted(parent.iterdir())
-            if p.is_dir() and ((p / "config.yaml").exists() or (p / "status.json").exists())]
+            if p.is_dir() and any((p / m).exists() for m in RUN_MARKERS)]

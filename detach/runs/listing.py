@@ -18,12 +18,12 @@ def run_row(run: RunFolder) -> dict[str, Any]:
         row.update(state="unreadable", error=f"{exc.__class__.__name__}: {exc}")
         return row
     row.update(task=cfg.task_name, model=cfg.model_name, seed=cfg.seed,
-               state=status.get("state", "?"), iteration=status.get("iteration", 0))
+               state=status.state, iteration=status.iteration)
     try:
         result = run.eval_result()
     except (OSError, ValueError):
         result = None
-    row["lh_sr"] = result["lh_success"]["rate"] if result else None
+    row["lh_sr"] = result.lh_success.rate if result else None
     return row
 
 

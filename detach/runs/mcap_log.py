@@ -1,24 +1,10 @@
-"""A run's MCAP log: JSON messages on a few topics, readable up to a crash.
+"""A run's MCAP log: the contract's JSON messages on its topics, readable up to a crash.
 
-Topics (all JSON with a JSON schema):
-- `/metrics`: one message per training iteration ({"iteration", "stage", and flat scalars
-  such as "loss/surrogate", "reward/mean", "success/traj", "fps"}).
-- `/scene`: once, the static scene:
-  {"task": "lh1",
-   "objects": [{"name", "category", "mesh": path of the asset's mesh.obj (object frame,
-                centred on its bbox), "pos": [x, y, z], "quat": [w, x, y, z], "bbox": [x, y, z],
-                "static": bool}],
-   "trajectories": {"0": [[x, y], ...]},
-   "targets": [{"subtask": i, "skill": "traj"|"carry"|"climb"|"sit", "pos": [x, y, z]}],
-   "bodies": [15 body names],
-   "body_geoms": [{"body": name, "type": "capsule"|"sphere"|"box", "size": [...] (MuJoCo
-                   geom size), "pos": [x, y, z], "quat": [w, x, y, z] (in the body frame)}]}
-- `/episode/bodies`: one message per frame of a preview/evaluation episode: body names,
-  positions [[x, y, z]] and quaternions [[w, x, y, z]] (MuJoCo order), poses of the dynamic
-  objects [{"name", "pos", "quat"}], the current subtask index and its skill.
-- `/tf`: the same body poses as `foxglove.FrameTransforms`, so the file opens in Foxglove.
-Chunks are flushed after every metrics message and every `flush_every` frames, so a crashed
-run's log reads up to its last flush.
+Topics and message types: `detach.run_contract` (/metrics `MetricsMessage`, /scene
+`SceneMessage`, /episode/bodies `EpisodeFrame`), plus /tf with the same body poses as
+`foxglove.FrameTransforms`, so the file opens in Foxglove. Chunks are flushed after every
+metrics message and every `flush_every` frames, so a crashed run's log reads up to its last
+flush.
 """
 
 from __future__ import annotations
@@ -31,25 +17,10 @@ from typing import Any, BinaryIO, Iterator, Sequence
 from mcap.reader import NonSeekingReader
 from mcap.writer import CompressionType, Writer
 
-_OBJECT = {"type": "object"}
-SCHEMAS: dict[str, dict[str, Any]] = {
-    "/metrics": {"title": "detach.Metrics", "type": "object",
-                 "properties": {"iteration": {"type": "integer"}, "stage": {"type": "string"}},
-                 "required": ["iteration"], "additionalProperties": {"type": "number"}},
-    "/scene": {"title": "detach.Scene", "type": "object",
-               "properties": {"objects": {"type": "array", "items": _OBJECT},
-                              "trajectories": _OBJECT, "targets": {"type": "array"}}},
-    "/episode/bodies": {"title": "detach.EpisodeBodies", "type": "object",
-                        "properties": {"episode": {"type": "integer"},
-                                       "frame": {"type": "integer"},
-                                       "time": {"type": "number"},
-                                       "bodies": {"type": "array", "items": {"type": "string"}},
-                                       "pos": {"type": "array"}, "quat": {"type": "array"},
-                                       "objects": {"type": "array"},
-                                       "subtask": {"type": "integer"},
-                                       "skill": {"type": "string"}},
-                        "required": ["episode", "frame", "bodies", "pos", "quat"]},
-}
+from detach.run_contract import (
+    EPISODE_TOPIC, MCAP_SCHEMAS, METRICS_TOPIC, SCENE_TOPIC, TF_TOPIC, EpisodeFrame, MetricsMessage, SceneMessage,
+)
+
 _VEC3 = {"type": "object", "properties": {k: {"type": "number"} for k in "xyz"}}
 FOXGLOVE_FRAME_TRANSFORMS = {
     "title": "foxglove.FrameTransforms", "type": "object",
@@ -78,16 +49,16 @@ class RunLogWriter:
                               compression=CompressionType.ZSTD)
         self._writer.start(profile="", library="detach")
         self._channels: dict[str, int] = {}
-        for topic, schema in SCHEMAS.items():
+        for topic, schema in MCAP_SCHEMAS.items():
             self._channels[topic] = self._register(topic, schema["title"], schema)
-        self._channels["/tf"] = self._register("/tf", "foxglove.FrameTransforms",
-                                               FOXGLOVE_FRAME_TRANSFORMS)
+        self._channels[TF_TOPIC] = self._register(TF_TOPIC, "foxglove.FrameTransforms",
+                                                  FOXGLOVE_FRAME_TRANSFORMS)
         self._frames_since_flush = 0
         self.flush_every = flush_every
         self._sequence = 0
         for topic, time_ns, message in previous:
             if topic in self._channels:
-                self._add(topic, message, time_ns)
+                self.write(topic, message, time_ns)
         self._writer.flush()
         os.replace(tmp, self.path)
 
@@ -97,7 +68,9 @@ class RunLogWriter:
         return self._writer.register_channel(topic=topic, message_encoding="json",
                                              schema_id=schema_id)
 
-    def _add(self, topic: str, data: dict[str, Any], time_ns: int) -> None:
+    def write(self, topic: str, data: dict[str, Any], time_ns: int) -> None:
+        """One raw JSON message on a registered topic (the typed `log_*` methods below are
+        what runs use; tools and tests may write any message)."""
         self._sequence += 1
         self._writer.add_message(channel_id=self._channels[topic], log_time=time_ns,
                                  publish_time=time_ns, sequence=self._sequence,
@@ -106,32 +79,25 @@ class RunLogWriter:
     def log_metrics(self, iteration: int, metrics: dict[str, float], stage: str = "",
                     time_ns: int | None = None) -> None:
         """One /metrics message per iteration; flushed at once (the dashboard tails it)."""
-        data: dict[str, Any] = {"iteration": int(iteration), "stage": stage}
-        data.update({k: float(v) for k, v in metrics.items()})
-        self._add("/metrics", data, time_ns if time_ns is not None else int(iteration))
+        message = MetricsMessage(int(iteration), stage, dict(metrics))
+        self.write(METRICS_TOPIC, message.to_json(), time_ns if time_ns is not None else int(iteration))
         self._writer.flush()
 
-    def log_scene(self, scene: dict[str, Any]) -> None:
-        self._add("/scene", scene, 0)
+    def log_scene(self, scene: SceneMessage) -> None:
+        self.write(SCENE_TOPIC, scene.to_json(), 0)
         self._writer.flush()
 
-    def log_frame(self, episode: int, frame: int, time_s: float, bodies: Sequence[str],
-                  pos: Sequence[Sequence[float]], quat: Sequence[Sequence[float]],
-                  objects: Sequence[dict[str, Any]] = (), subtask: int = 0,
-                  skill: str = "") -> None:
+    def log_frame(self, frame: EpisodeFrame) -> None:
         """One /episode/bodies frame plus its foxglove.FrameTransforms twin on /tf."""
-        time_ns = int(round(time_s * 1e9))
-        self._add("/episode/bodies", {
-            "episode": episode, "frame": frame, "time": time_s, "bodies": list(bodies),
-            "pos": [[round(float(v), 5) for v in p] for p in pos],
-            "quat": [[round(float(v), 5) for v in q] for q in quat],
-            "objects": list(objects), "subtask": subtask, "skill": skill}, time_ns)
+        time_ns = int(round(frame.time * 1e9))
+        data = frame.to_json()
+        self.write(EPISODE_TOPIC, data, time_ns)
         stamp = {"sec": time_ns // 1_000_000_000, "nsec": time_ns % 1_000_000_000}
-        self._add("/tf", {"transforms": [
+        self.write(TF_TOPIC, {"transforms": [
             {"timestamp": stamp, "parent_frame_id": "world", "child_frame_id": name,
              "translation": {"x": p[0], "y": p[1], "z": p[2]},
              "rotation": {"x": q[1], "y": q[2], "z": q[3], "w": q[0]}}
-            for name, p, q in zip(bodies, pos, quat)]}, time_ns)
+            for name, p, q in zip(frame.bodies, data["pos"], data["quat"])]}, time_ns)
         self._frames_since_flush += 1
         if self._frames_since_flush >= self.flush_every:
             self.flush()
@@ -174,18 +140,18 @@ def iter_messages(path: Path, topics: Sequence[str] | None = None
 
 def read_metrics(path: Path) -> list[dict[str, Any]]:
     """Every /metrics message, in iteration order."""
-    return [m for _t, _time, m in iter_messages(path, ["/metrics"])]
+    return [m for _t, _time, m in iter_messages(path, [METRICS_TOPIC])]
 
 
-def read_scene(path: Path) -> dict[str, Any] | None:
-    for _t, _time, m in iter_messages(path, ["/scene"]):
-        return m
+def read_scene(path: Path) -> SceneMessage | None:
+    for _t, _time, m in iter_messages(path, [SCENE_TOPIC]):
+        return SceneMessage.from_json(m)
     return None
 
 
 def read_episodes(path: Path) -> dict[int, list[dict[str, Any]]]:
     """Frames of /episode/bodies grouped by episode number."""
     episodes: dict[int, list[dict[str, Any]]] = {}
-    for _t, _time, m in iter_messages(path, ["/episode/bodies"]):
+    for _t, _time, m in iter_messages(path, [EPISODE_TOPIC]):
         episodes.setdefault(int(m["episode"]), []).append(m)
     return episodes

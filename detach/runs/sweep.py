@@ -83,7 +83,7 @@ def existing_runs(out: Path) -> dict[str, RunFolder]:
     found: dict[str, RunFolder] = {}
     for run in find_runs(out):
         try:
-            key = run.status().get("cell")
+            key = run.status().cell
         except (OSError, ValueError):
             continue
         if key:
@@ -98,7 +98,7 @@ def cell_command(cell: Cell, sweep: SweepCfg, sweep_path: Path, out: Path,
     common = ["--trials", str(sweep.eval_trials), "--device", device]
     common += [arg for t in evals for arg in ("--eval-on", t)]
     if previous is not None:
-        state = previous.status().get("state")
+        state = previous.status().state
         if state == "finished":
             return None
         if state in ("interrupted", "failed", "running") and previous.latest_checkpoint():

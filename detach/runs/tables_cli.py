@@ -4,26 +4,26 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
 
 from detach.config import ConfigError
 from detach.eval.tables import TABLES, render
+from detach.run_contract import EVAL_GLOB, EvalResult
 from detach.runs.folder import RunFolder, atomic_write_text, find_runs
 
 
-def collect_evals(runs: list[RunFolder], cells: set[str] | None = None) -> list[dict[str, Any]]:
+def collect_evals(runs: list[RunFolder], cells: set[str] | None = None) -> list[EvalResult]:
     """Every eval*.json of the given runs (restricted to sweep cells when given)."""
     evals = []
     for run in runs:
         if cells is not None:
             try:
-                if run.status().get("cell") not in cells:
+                if run.status().cell not in cells:
                     continue
             except (OSError, ValueError):
                 continue
-        for path in sorted(run.path.glob("eval*.json")):
+        for path in sorted(run.path.glob(EVAL_GLOB)):
             try:
-                evals.append(json.loads(path.read_text(encoding="utf-8")))
+                evals.append(EvalResult.from_json(json.loads(path.read_text(encoding="utf-8")), str(path)))
             except (OSError, ValueError):
                 continue
     return evals

@@ -2,17 +2,18 @@
 stage-dependent auxiliary losses; selected through `algorithm.class_name`, rsl-rl unforked.
 
 What it adds to PPO:
-- AMP: every env step, the discriminator scores the newest AMP window (`amp` group; for
-  episodes that just ended, the env's `extras["terminal_amp"]` window from before the reset)
-  conditioned on the skill one-hot (`task` group); the style reward is mixed with the task
-  reward (`task_reward_weight`, `style_reward_weight`). After PPO's update the discriminator
-  trains on reference windows from `reference_sampler(n) -> (amp, skill one-hot)` against
-  this rollout's and replayed policy windows.
+- AMP (`AmpCfg`): every env step, the discriminator scores the newest AMP window (`amp`
+  group) conditioned on the skill one-hot (`task` group); the style reward is mixed with the
+  task reward (`task_reward_weight`, `style_reward_weight`). After PPO's update the
+  discriminator trains `disc_updates` times on reference windows from
+  `reference_sampler(n) -> (amp, skill one-hot)` against this rollout's and replayed policy
+  windows.
 - Body-part discriminators (CML): one discriminator per entry of `amp_parts` (feature
   indices of the AMP window), each its own reward objective.
 - Multi-objective critics (CML): a critic with `num_objectives = K` predicts one value per
-  objective ([task, style or style parts]); GAE runs per objective and advantages are
-  normalised per objective before their weighted sum (CML's per-objective normalisation).
+  objective ([task, style or style parts]); GAE runs per objective and, with
+  `per_objective_advantage_norm` (CML's), advantages are normalised per objective before their
+  weighted sum; otherwise the weighted sum is normalised.
 - Shared trunk (`model.shared_trunk`): the critic is linked to the actor's trunk before PPO
   builds its optimiser (`link_shared_trunk`), so the trunk's parameters are listed once.
 - Stages (DETACH): `stage` is set by the runner each iteration. In "pretrain" PPO does not
@@ -30,6 +31,7 @@ import torch
 from tensordict import TensorDict
 from rsl_rl.algorithms import PPO
 
+from detach.config_schema import AmpCfg
 from detach.models.rsl_rl_models import link_shared_trunk
 from detach.train.discriminator import AmpDiscriminator, ReplayBuffer
 
@@ -38,8 +40,12 @@ ReferenceSampler = Callable[[int], tuple[torch.Tensor, torch.Tensor]]
 
 
 class AmpPPO(PPO):
-    def __init__(self, actor, critic, storage, amp_cfg: dict | None = None,
-                 aux_updates: int = 1, **ppo_kwargs) -> None:
+    def __init__(self, actor, critic, storage, amp: AmpCfg | None = None, task_specific: bool = True,
+                 amp_parts: dict[str, list[int]] | None = None, per_objective_advantage_norm: bool = True,
+                 **ppo_kwargs) -> None:
+        """amp: the AMP settings (None = no AMP); task_specific: condition the discriminator on
+        the skill one-hot; amp_parts: feature indices of the AMP window per body part (CML's
+        body-part discriminators; None = one whole-body discriminator)."""
         link_shared_trunk(actor, critic)  # before PPO lists the parameters for its optimiser
         super().__init__(actor, critic, storage, **ppo_kwargs)
         if ppo_kwargs.get("optimizer", "adam") == "adam":
@@ -48,18 +54,14 @@ class AmpPPO(PPO):
             self.optimizer = torch.optim.Adam(
                 chain(self.actor.parameters(), self.critic.parameters()),
                 lr=self.learning_rate, fused=True)
-        amp_cfg = dict(amp_cfg or {})
-        self.amp_enabled = bool(amp_cfg.get("enabled", False))
-        self.task_weight = float(amp_cfg.get("task_reward_weight", 1.0)) if self.amp_enabled else 1.0
-        self.style_weight = float(amp_cfg.get("style_reward_weight", 0.0)) if self.amp_enabled else 0.0
-        self.grad_penalty = float(amp_cfg.get("grad_penalty", 5.0))
-        self.logit_reg = float(amp_cfg.get("logit_reg", 0.01))
-        self.disc_batch = int(amp_cfg.get("batch_size", 512))
-        self.disc_updates = int(amp_cfg.get("updates", 2))
-        self.conditional = bool(amp_cfg.get("task_specific", True))
+        self.amp = amp or AmpCfg(enabled=False)
+        self.amp_enabled = self.amp.enabled
+        self.task_weight = self.amp.task_reward_weight if self.amp_enabled else 1.0
+        self.style_weight = self.amp.style_reward_weight if self.amp_enabled else 0.0
+        self.conditional = task_specific
+        self.per_objective_norm = per_objective_advantage_norm
         self.reference_sampler: ReferenceSampler | None = None
         self.aux_loss_fn: AuxLossFn | None = None
-        self.aux_updates = aux_updates
         self.stage = "ppo"
         heads = tuple(getattr(critic, "value_objectives", ()) or ())
         self.num_objectives = len(heads) if heads else int(getattr(critic, "num_objectives", 1))
@@ -68,21 +70,18 @@ class AmpPPO(PPO):
         obs = storage.observations
         amp_dim = obs["amp"].shape[-1] if self.amp_enabled else 0
         cond_dim = obs["task"].shape[-1] if (self.amp_enabled and self.conditional) else 0
-        parts: dict[str, list[int]] = amp_cfg.get("parts") or {}
         self.amp_parts = {name: torch.as_tensor(idx, dtype=torch.long, device=self.device)
-                          for name, idx in parts.items()} or {"all": None}
+                          for name, idx in (amp_parts or {}).items()} or {"all": None}
         self.discriminators = torch.nn.ModuleDict()
         if self.amp_enabled:
             for name, idx in self.amp_parts.items():
                 width = amp_dim if idx is None else int(idx.numel())
                 self.discriminators[name] = AmpDiscriminator(
-                    width, cond_dim, amp_cfg.get("disc_hidden", (1024, 512)),
-                    amp_cfg.get("objective", "lsgan")).to(self.device)
+                    width, cond_dim, self.amp.disc_hidden, self.amp.objective).to(self.device)
             self.disc_optimizer = torch.optim.Adam(
-                self.discriminators.parameters(), lr=float(amp_cfg.get("learning_rate", 1e-4)),
-                weight_decay=float(amp_cfg.get("weight_decay", 1e-4)), fused=True)
-            self.replay = ReplayBuffer(int(amp_cfg.get("replay_size", 100000)), amp_dim,
-                                       cond_dim, self.device)
+                self.discriminators.parameters(), lr=self.amp.learning_rate,
+                weight_decay=self.amp.weight_decay, fused=True)
+            self.replay = ReplayBuffer(self.amp.replay_size, amp_dim, cond_dim, self.device)
         expected = 1 + (len(self.amp_parts) if self.amp_enabled else 0)
         if self.num_objectives not in (1, expected):
             raise ValueError(f"critic predicts {self.num_objectives} objectives; this AMP setup "
@@ -119,9 +118,6 @@ class AmpPPO(PPO):
         objectives = [task_reward]
         if self.amp_enabled:
             amp_obs = obs["amp"]
-            terminal = extras.get("terminal_amp")
-            if terminal is not None:
-                amp_obs = torch.where(dones.reshape(-1, 1).bool(), terminal.to(self.device), amp_obs)
             cond = self.transition.observations["task"] if self.conditional else None
             style = self._style_rewards(amp_obs, cond)
             self._rollout_amp.append(amp_obs.clone())
@@ -165,10 +161,12 @@ class AmpPPO(PPO):
             advantage = delta + not_done * self.gamma * self.lam * advantage
             st.returns[step] = advantage + values[step]
         adv = st.returns - values
+        if not self.per_objective_norm:
+            adv = (adv * self.objective_weights).sum(-1, keepdim=True)
         if not self.normalize_advantage_per_mini_batch:
             flat = adv.reshape(-1, adv.shape[-1])
             adv = (adv - flat.mean(0)) / (flat.std(0) + 1e-8)
-        st.advantages = (adv * self.objective_weights).sum(-1, keepdim=True)
+        st.advantages = (adv * self.objective_weights).sum(-1, keepdim=True) if self.per_objective_norm else adv
 
     # ------------------------------------------------------------------ learning
     def update(self) -> dict[str, float]:
@@ -199,8 +197,8 @@ class AmpPPO(PPO):
         self._rollout_amp.clear()
         self._rollout_cond.clear()
         sums: dict[str, float] = {}
-        for _ in range(self.disc_updates):
-            n = min(self.disc_batch, policy.shape[0])
+        for _ in range(self.amp.disc_updates):
+            n = min(self.amp.batch_size, policy.shape[0])
             idx = torch.randint(0, policy.shape[0], (n,), device=self.device)
             pol_obs, pol_cond = policy[idx], (cond[idx] if cond is not None else None)
             if self.replay.size > 0:
@@ -216,11 +214,11 @@ class AmpPPO(PPO):
                 sel = self.amp_parts[name]
                 pick = (lambda x: x) if sel is None else (lambda x, s=sel: x.index_select(-1, s))
                 terms = disc.loss(pick(ref_obs), pick(pol_obs), ref_cond, pol_cond,
-                                  self.grad_penalty, self.logit_reg)
+                                  self.amp.grad_penalty, self.amp.logit_reg)
                 total = total + terms["total"]
                 for key, value in terms.items():
                     tag = f"amp/{key}" if len(self.discriminators) == 1 else f"amp_{name}/{key}"
-                    sums[tag] = sums.get(tag, 0.0) + float(value.detach()) / self.disc_updates
+                    sums[tag] = sums.get(tag, 0.0) + float(value.detach()) / self.amp.disc_updates
             self.disc_optimizer.zero_grad()
             total.backward()
             self.disc_optimizer.step()
@@ -235,20 +233,19 @@ class AmpPPO(PPO):
         sums: dict[str, float] = {}
         batch = max(obs.batch_size[0] // self.num_mini_batches, 1)
         steps = 0
-        for _ in range(self.aux_updates):
-            perm = torch.randperm(obs.batch_size[0], device=self.device)
-            for start in range(0, perm.numel() - batch + 1, batch):
-                loss, logs = self.aux_loss_fn(obs[perm[start:start + batch]], self.stage)
-                if loss.requires_grad:
-                    self.optimizer.zero_grad()
-                    loss.backward()
-                    torch.nn.utils.clip_grad_norm_(
-                        [p for g in self.optimizer.param_groups for p in g["params"]],
-                        self.max_grad_norm)
-                    self.optimizer.step()
-                for key, value in logs.items():
-                    sums[key] = sums.get(key, 0.0) + float(value)
-                steps += 1
+        perm = torch.randperm(obs.batch_size[0], device=self.device)
+        for start in range(0, perm.numel() - batch + 1, batch):
+            loss, logs = self.aux_loss_fn(obs[perm[start:start + batch]], self.stage)
+            if loss.requires_grad:
+                self.optimizer.zero_grad()
+                loss.backward()
+                torch.nn.utils.clip_grad_norm_(
+                    [p for g in self.optimizer.param_groups for p in g["params"]],
+                    self.max_grad_norm)
+                self.optimizer.step()
+            for key, value in logs.items():
+                sums[key] = sums.get(key, 0.0) + float(value)
+            steps += 1
         return {k: v / max(steps, 1) for k, v in sums.items()}
 
     # ------------------------------------------------------------------ state

@@ -2,8 +2,8 @@
 
 Reference windows are featurised with the env's own `amp_frame` (the single definition of
 an AMP frame), so the discriminator compares like with like. With task-specific
-discrimination a window's skill one-hot says which task's clip group (`SKILL_GROUPS`) it was
-drawn from; the skill of each sample is drawn uniformly over the tasks that have clips.
+discrimination a window's skill one-hot says which skill's clips (`Skill.motion_labels`) it
+was drawn from; the skill of each sample is drawn uniformly over the skills that have clips.
 """
 
 from __future__ import annotations
@@ -13,10 +13,11 @@ from typing import Callable
 import torch
 import torch.nn.functional as F
 
-from detach.config_schema import SKILLS
-from detach.envs.observations import amp_frame
-from detach.envs.torch_math import heading_matrix, yaw_of
-from detach.motion import SKILL_GROUPS, MotionLib, MotionState
+from detach.character.body import DOF_NAMES, KEY_BODIES
+from detach.envs.observations import AMP_DIM, NUM_DOF, amp_frame
+from detach.motion import MotionLib, MotionState
+from detach.skills import skill_class, skill_names
+from detach.torch_math import heading_matrix, yaw_of
 
 
 def amp_features(state: MotionState) -> torch.Tensor:
@@ -31,9 +32,10 @@ def amp_features(state: MotionState) -> torch.Tensor:
 def amp_reference_sampler(lib: MotionLib, steps: int, dt: float, conditional: bool = True,
                           device: str | torch.device = "cpu"
                           ) -> Callable[[int], tuple[torch.Tensor, torch.Tensor]]:
-    """fn(n) -> (AMP windows [n, steps * d], skill one-hot [n, len(SKILLS)])."""
-    tasks = [i for i, skill in enumerate(SKILLS)
-             if any(label in lib.skills_present for label in SKILL_GROUPS[skill])]
+    """fn(n) -> (AMP windows [n, steps * d], skill one-hot [n, number of skills])."""
+    names = skill_names()
+    labels = [skill_class(name).motion_labels for name in names]
+    tasks = [i for i, group in enumerate(labels) if any(label in lib.skills_present for label in group)]
 
     def sample(n: int) -> tuple[torch.Tensor, torch.Tensor]:
         if conditional:
@@ -41,13 +43,13 @@ def amp_reference_sampler(lib: MotionLib, steps: int, dt: float, conditional: bo
             parts, onehots = [], []
             for task in picks.unique().tolist():
                 k = int((picks == task).sum())
-                _ids, state = lib.sample_windows(k, steps=steps, dt=dt, skills=SKILLS[task])
+                _ids, state = lib.sample_windows(k, steps=steps, dt=dt, skills=labels[task])
                 parts.append(amp_features(state))
-                onehots.append(F.one_hot(torch.full((k,), task), len(SKILLS)).float())
+                onehots.append(F.one_hot(torch.full((k,), task), len(names)).float())
             windows, cond = torch.cat(parts), torch.cat(onehots)
         else:
             _ids, state = lib.sample_windows(n, steps=steps, dt=dt)
-            windows, cond = amp_features(state), torch.zeros(n, len(SKILLS))
+            windows, cond = amp_features(state), torch.zeros(n, len(names))
         return windows.to(device), cond.to(device)
 
     return sample
@@ -77,9 +79,6 @@ def amp_part_indices(parts: tuple[str, ...] | list[str], steps: int) -> dict[str
     positions (12). Every part sees the root features; `upper` the abdomen, neck, shoulder
     and elbow hinges and the hands; `lower` the hip, knee and ankle hinges and the feet.
     """
-    from detach.envs.humanoid import DOF_NAMES, KEY_BODIES
-    from detach.envs.observations import AMP_DIM, NUM_DOF
-
     upper_joints = ("abdomen", "neck", "right_shoulder", "right_elbow", "left_shoulder",
                     "left_elbow")
     root = list(range(13))

@@ -15,17 +15,23 @@ import statistics
 import time
 from collections import deque
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Protocol
 
 import torch
 from rsl_rl.runners import OnPolicyRunner
 from tqdm import tqdm
 
-from detach.runs.mcap_log import RunLogWriter
+from detach.run_contract import checkpoint_file
 from detach.train.schedule import stage_at
 
 StageHook = Callable[[str], None]
 IterationHook = Callable[[int, dict[str, float]], None]
+
+
+class MetricsSink(Protocol):
+    """Where the metrics of every iteration go (the run's log.mcap in a run folder)."""
+
+    def log_metrics(self, iteration: int, metrics: dict[str, float], stage: str = "") -> None: ...
 
 
 class StopRequested(Exception):
@@ -35,7 +41,7 @@ class StopRequested(Exception):
 class DetachRunner(OnPolicyRunner):
     def __init__(self, env, train_cfg: dict, device: str = "cpu",
                  schedule: list[tuple[str, int]] | None = None,
-                 checkpoint_dir: Path | None = None, log: RunLogWriter | None = None,
+                 checkpoint_dir: Path | None = None, log: MetricsSink | None = None,
                  on_stage: StageHook | None = None, on_iteration: IterationHook | None = None,
                  progress: bool = True) -> None:
         train_cfg = {**train_cfg, "logger": {"class_name": "detach.train.null_writer:NullWriter"}}
@@ -53,7 +59,7 @@ class DetachRunner(OnPolicyRunner):
     def checkpoint_path(self, iteration: int) -> Path | None:
         if self.checkpoint_dir is None:
             return None
-        return self.checkpoint_dir / f"model_{iteration}.pt"
+        return self.checkpoint_dir / checkpoint_file(iteration)
 
     def save_checkpoint(self) -> Path | None:
         path = self.checkpoint_path(self.completed_iteration)

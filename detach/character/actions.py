@@ -1,11 +1,11 @@
-"""Policy actions -> MuJoCo controls.
+"""Policy actions -> hinge PD targets, shared by every character.
 
-Hinge actions (the first 32 values, both characters) are PD targets: q* = clip(q_default +
-a * (hi - lo) / 2, lo, hi), radians, with a nominally in [-1, 1] and q_default = 0 (standing
-upright, arms down). Centring on the standing pose rather than the middle of each range (as
-AMP does) makes a zero action a stable stance, which helps both exploration and scripted
-control; the half-range scale still reaches every limit. The puppet's extra actions are
-mapped by `detach.envs.puppet.root_ctrl`.
+Hinge actions (the first 32 values) are PD targets: q* = clip(q_default + a * (hi - lo) / 2,
+lo, hi), radians, with a nominally in [-1, 1] and q_default = 0 (standing upright, arms down).
+Centring on the standing pose rather than the middle of each range (as AMP does) makes a zero
+action a stable stance, which helps both exploration and scripted control; the half-range
+scale still reaches every limit. A character's extra actions (the puppet's root servos) are
+mapped by the character itself.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Reference trajectories for `follow` (traj) subtasks, as time-stamped 2-D polylines.
+"""Reference trajectories of `follow` subtasks, as time-stamped 2-D polylines.
 
 A trajectory is a [V, 2] array of world XY vertices visited at a constant time step `dt`
 (seconds); the reference point at time t (seconds since the subtask started) is the linear
@@ -20,6 +20,9 @@ import numpy as np
 import torch
 
 from detach.config_schema import TrajectoryGenCfg
+
+FIXED_TRAJ_DT = 0.1
+"""Vertex spacing in time (s) of YAML trajectories after timing them at the mean speed."""
 
 
 def random_trajectories(start_xy: torch.Tensor, heading: torch.Tensor, cfg: TrajectoryGenCfg,
@@ -118,3 +121,59 @@ def distance_to_polyline(p: torch.Tensor, verts: torch.Tensor) -> torch.Tensor:
     s = ((ap * ab).sum(-1) / denom).clamp(0.0, 1.0)
     closest = a + s[..., None] * ab
     return (p[:, None, :] - closest).norm(dim=-1).min(dim=1).values
+
+
+class TrajectoryReference:
+    """Each env's reference polyline [N, L, 2] (world XY), its vertex time step [N] (s) and
+    the control step its subtask started at [N]: the reference point is `sample_at` the time
+    since then. Follow subtasks load paths into it; other subtasks park it on the pelvis.
+
+    YAML trajectories are timed at the generator's mean speed with `FIXED_TRAJ_DT` between
+    vertices; procedural ones last `rand_duration` s, short enough to be reached and held
+    (60 steps) before the episode's time limit, so that follow subtasks complete like fixed ones.
+    """
+
+    def __init__(self, trajectories: dict, cfg: TrajectoryGenCfg, num_envs: int, episode_length: int,
+                 max_transition_steps: int, dt: float, device: torch.device) -> None:
+        speed = 0.5 * (cfg.speed_min + cfg.speed_max)
+        ids = sorted(trajectories)
+        fixed = [torch.as_tensor(time_polyline(trajectories[k], speed, FIXED_TRAJ_DT), dtype=torch.float32,
+                                 device=device) for k in ids]
+        self.length = max([cfg.num_verts] + [f.shape[0] for f in fixed])
+        self.fixed = {k: pad_to(f, self.length) for k, f in zip(ids, fixed)}
+        margin = max(60, max_transition_steps) + 30
+        self.rand_duration = max(episode_length - margin, episode_length // 2) * dt
+        self.cfg, self.dt_control = cfg, dt
+        self.verts = torch.zeros(num_envs, self.length, 2, device=device)
+        self.vertex_dt = torch.full((num_envs,), FIXED_TRAJ_DT, device=device)
+        self.t0 = torch.zeros(num_envs, dtype=torch.long, device=device)
+
+    def restart(self, ids: torch.Tensor, steps: torch.Tensor) -> None:
+        """Envs ids start a subtask now (steps [n]: their control step)."""
+        self.t0[ids] = steps
+
+    def load_random(self, ids: torch.Tensor, start_xy: torch.Tensor, generator: torch.Generator) -> None:
+        heading = (torch.rand(len(ids), generator=generator) * 2 - 1).to(self.verts.device) * math.pi
+        verts, dt = random_trajectories(start_xy, heading, self.cfg, self.rand_duration, generator)
+        self.verts[ids] = pad_to(verts, self.length)
+        self.vertex_dt[ids] = dt
+
+    def load_fixed(self, ids: torch.Tensor, key: int) -> None:
+        self.verts[ids] = self.fixed[key]
+        self.vertex_dt[ids] = FIXED_TRAJ_DT
+
+    def park(self, ids: torch.Tensor, xy: torch.Tensor) -> None:
+        """A constant reference at xy [n, 2] (subtasks that follow no path)."""
+        self.verts[ids] = xy[:, None, :].expand(-1, self.length, -1)
+
+    def reference(self, steps: torch.Tensor, ahead: float | torch.Tensor) -> torch.Tensor:
+        """Reference XY [N, 2] `ahead` s from now (or [N, k, 2] for a tensor of times)."""
+        t = (steps - self.t0).float() * self.dt_control
+        if isinstance(ahead, torch.Tensor):
+            return sample_at(self.verts, self.vertex_dt, t[:, None] + ahead[None])
+        return sample_at(self.verts, self.vertex_dt, t + ahead)
+
+    @property
+    def end(self) -> torch.Tensor:
+        """[N, 2] the last vertex of each env's path."""
+        return self.verts[:, -1]

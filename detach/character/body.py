@@ -1,4 +1,4 @@
-"""The project's simulated humanoid, built with `mujoco.MjSpec` (no XML file to keep in sync).
+"""The project's 15-body, 32-DoF character body, built with `mujoco.MjSpec` (no XML to keep in sync).
 
 Proportions follow the AMP/TokenHSI character: 15 rigid bodies, 12 controllable joints with
 32 hinge degrees of freedom (3-DoF abdomen, neck, shoulders, hips, knees and ankles as three
@@ -13,13 +13,14 @@ physics step, while the policy sets the targets at the control rate (30 Hz). Wit
 `implicitfast` integrator the damping term is integrated implicitly, which keeps the stiff
 gains stable at dt = 1/120 s.
 
-The `puppet` variant (see `detach.envs.puppet`) replaces the free root joint with actuated
-slides (x, y, z) and a yaw hinge, and compensates gravity on its own bodies.
+Every character (`detach.character`) shares this body and differs only in its root: how the
+pelvis is attached to the world and what actuates it.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import mujoco
 import numpy as np
@@ -33,7 +34,7 @@ STAND_HEIGHT = 0.935
 FLOOR_TO_SOLE = 0.935
 """Distance from the pelvis origin to the sole at the default pose, metres."""
 
-HUMANOID_GEOM_GROUP = 1
+CHARACTER_GEOM_GROUP = 1
 """Geom group of the character's geoms (rays for height maps exclude it)."""
 
 
@@ -89,6 +90,8 @@ BODY_NAMES: tuple[str, ...] = (
 KEY_BODIES: tuple[str, ...] = ("right_hand", "left_hand", "right_foot", "left_foot")
 """Bodies whose positions enter the AMP observation."""
 
+HANDS: tuple[str, ...] = ("right_hand", "left_hand")
+
 DOF_NAMES: tuple[str, ...] = tuple(f"{g.name}_{a}" for g in JOINT_GROUPS for a in g.axes)
 """Names of the 32 hinges (MuJoCo joint names), e.g. `right_knee_y`."""
 
@@ -98,23 +101,6 @@ NUM_DOF = len(DOF_NAMES)
 def dof_ranges() -> np.ndarray:
     """[32, 2] hinge ranges in radians, DoF order."""
     return np.array([r for g in JOINT_GROUPS for r in g.ranges], dtype=np.float64)
-
-
-def dof_gains() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(kp [32], kd [32], force limit [32]) of the PD actuators, DoF order."""
-    kp = np.array([g.kp for g in JOINT_GROUPS for _ in g.axes], dtype=np.float64)
-    kd = np.array([g.kd for g in JOINT_GROUPS for _ in g.axes], dtype=np.float64)
-    fmax = np.array([g.max_force for g in JOINT_GROUPS for _ in g.axes], dtype=np.float64)
-    return kp, kd, fmax
-
-
-def joint_group_slices() -> list[tuple[str, slice]]:
-    """(joint name, slice into the 32 DoF) per controllable joint."""
-    out, i = [], 0
-    for g in JOINT_GROUPS:
-        out.append((g.name, slice(i, i + len(g.axes))))
-        i += len(g.axes)
-    return out
 
 
 # --- geometry ----------------------------------------------------------------------------
@@ -164,32 +150,21 @@ def _add_geoms(body: mujoco.MjsBody, geoms: tuple, friction: float) -> None:
         else:
             g.pos = where
         g.friction = (friction, 0.005, 0.0001)
-        g.group = HUMANOID_GEOM_GROUP
+        g.group = CHARACTER_GEOM_GROUP
         g.rgba = (0.75, 0.6, 0.45, 1.0)
         g.density = 985.0  # human tissue, kg/m^3
 
 
-def add_humanoid(
-    parent: mujoco.MjsBody,
-    spec: mujoco.MjSpec,
-    puppet: bool = False,
-    friction: float = 1.0,
-    armature: float = 0.08,
-) -> mujoco.MjsBody:
-    """Add the character's bodies, hinges and PD actuators under `parent`; return the pelvis.
+def add_body(parent: mujoco.MjsBody, spec: mujoco.MjSpec, add_root: Callable[[mujoco.MjsBody], None],
+             friction: float = 1.0, armature: float = 0.08) -> dict[str, mujoco.MjsBody]:
+    """Add the 15 bodies, 32 hinges and their PD actuators under `parent`; returns the bodies.
 
-    The root joint is a free joint for the humanoid; the puppet's root joints and actuators
-    are added by `detach.envs.puppet.add_root_actuation` (called here) so that both share
-    this one body definition. Actuators are added to `spec` in `DOF_NAMES` order, before any
-    root actuator, so `ctrl[:32]` are always the hinge PD targets.
+    `add_root(pelvis)` adds the character's root joint(s) to the pelvis before anything else,
+    so that the root comes first in qpos. Actuators are added to `spec` in `DOF_NAMES` order:
+    `ctrl[:32]` are always the hinge PD targets, whatever a character adds after them.
     """
     pelvis = parent.add_body(name="pelvis", pos=(0.0, 0.0, START_HEIGHT))
-    if puppet:
-        from detach.envs.puppet import add_root_joints
-
-        add_root_joints(pelvis)
-    else:
-        pelvis.add_freejoint(name="root")
+    add_root(pelvis)
     _add_geoms(pelvis, _PELVIS_GEOMS, friction)
     # An accelerometer makes MuJoCo run mj_rnePostConstraint, which fills cfrc_ext (contact
     # forces per body) for the backend's contact view; it costs O(nbody).
@@ -221,13 +196,7 @@ def add_humanoid(
             a.ctrlrange = rng
             a.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
             a.forcerange = (-g.max_force, g.max_force)
-    if puppet:
-        from detach.envs.puppet import add_root_actuators
-
-        for b in bodies.values():
-            b.gravcomp = 1.0
-        add_root_actuators(spec)
-    return pelvis
+    return bodies
 
 
 def configure_options(spec: mujoco.MjSpec, physics_dt: float, iterations: int) -> None:
@@ -240,25 +209,6 @@ def configure_options(spec: mujoco.MjSpec, physics_dt: float, iterations: int) -
     spec.compiler.degree = False  # every angle in this project is in radians
 
 
-def build_humanoid_spec(
-    character: str = "humanoid",
-    physics_dt: float = 1.0 / 120.0,
-    iterations: int = 4,
-    friction: float = 1.0,
-    with_floor: bool = True,
-) -> mujoco.MjSpec:
-    """A stand-alone spec: the character (humanoid or puppet) on a floor plane."""
-    if character not in ("humanoid", "puppet"):
-        raise ValueError(f"character: expected 'humanoid' or 'puppet', got {character!r}")
-    spec = mujoco.MjSpec()
-    spec.modelname = character
-    configure_options(spec, physics_dt, iterations)
-    if with_floor:
-        add_floor(spec, friction)
-    add_humanoid(spec.worldbody, spec, puppet=character == "puppet", friction=friction)
-    return spec
-
-
 def add_floor(spec: mujoco.MjSpec, friction: float = 1.0, size: float = 0.0) -> mujoco.MjsGeom:
     """An infinite floor plane at z = 0 (size 0 = infinite), plus a light."""
     g = spec.worldbody.add_geom(name="floor")
@@ -269,8 +219,3 @@ def add_floor(spec: mujoco.MjSpec, friction: float = 1.0, size: float = 0.0) -> 
     g.group = 0
     spec.worldbody.add_light(pos=(0.0, 0.0, 6.0), dir=(0.0, 0.0, -1.0), type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL)
     return g
-
-
-def build_humanoid_model(character: str = "humanoid", **kw) -> mujoco.MjModel:
-    """Compile `build_humanoid_spec`; a convenience for tests and benchmarks."""
-    return build_humanoid_spec(character, **kw).compile()

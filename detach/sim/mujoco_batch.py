@@ -1,102 +1,18 @@
-"""The seam between task logic and the physics engine (ARCHITECTURE.md, "Physics backend").
-
-Task code sees N independent simulations of one MjModel through `PhysicsBackend`: it writes
-controls, steps, resets chosen simulations to given states, and reads batched state as torch
-tensors on its device. It never touches MjData. `MujocoBatchBackend` is the CPU
-implementation on `mujoco.batch.Batch` (all cores, GIL released); a MuJoCo Warp backend
-sharing arrays with torch through DLPack can implement the same interface.
-
-All tensors are float32 on `device`, world frame, MuJoCo conventions: quaternions wxyz,
-`cvel` = [angular(3), linear(3)] spatial velocity about `subtree_com` of the body's tree root,
-`cfrc_ext` = [torque(3), force(3)] of external (contact) forces on each body.
-"""
+"""`mujoco.batch.Batch` as a `PhysicsBackend`: the CPU backend (all cores, GIL released)."""
 
 from __future__ import annotations
 
 import warnings
-from abc import ABC, abstractmethod
 
 import mujoco
 import numpy as np
 import torch
 from mujoco import batch as mjbatch
 
+from detach.sim.backend import PhysicsBackend
+
 _STAGE_VEL = int(mujoco.mjtStage.mjSTAGE_VEL)
 _STAGE_NONE = int(mujoco.mjtStage.mjSTAGE_NONE)
-
-
-class PhysicsBackend(ABC):
-    """Batched simulator of one model; every view is [N, ...] and current after step/reset."""
-
-    model: mujoco.MjModel
-    num_envs: int
-    device: torch.device
-
-    @abstractmethod
-    def step(self, ctrl: torch.Tensor, nstep: int) -> None:
-        """Apply ctrl [N, nu] and advance every simulation by nstep physics steps."""
-
-    @abstractmethod
-    def reset(self, ids: torch.Tensor, qpos: torch.Tensor, qvel: torch.Tensor) -> None:
-        """Reset simulations ids [n] to model defaults, then to the given qpos [n, nq], qvel [n, nv].
-
-        Controls, equality activations and warm starts return to the model's defaults.
-        """
-
-    @abstractmethod
-    def set_equality(self, ids: torch.Tensor, eq_id: int, active: torch.Tensor,
-                     data: torch.Tensor | None = None) -> None:
-        """Switch equality constraint eq_id on/off in simulations ids; optionally set its
-        per-simulation eq_data [n, 12] (e.g. a weld's relative pose)."""
-
-    # batched views ------------------------------------------------------------------------
-    @property
-    @abstractmethod
-    def qpos(self) -> torch.Tensor: ...
-
-    @property
-    @abstractmethod
-    def qvel(self) -> torch.Tensor: ...
-
-    @property
-    @abstractmethod
-    def xpos(self) -> torch.Tensor: ...
-
-    @property
-    @abstractmethod
-    def xquat(self) -> torch.Tensor: ...
-
-    @property
-    @abstractmethod
-    def cvel(self) -> torch.Tensor: ...
-
-    @property
-    @abstractmethod
-    def subtree_com(self) -> torch.Tensor: ...
-
-    @property
-    @abstractmethod
-    def qfrc_actuator(self) -> torch.Tensor: ...
-
-    @property
-    @abstractmethod
-    def cfrc_ext(self) -> torch.Tensor: ...
-
-    @property
-    @abstractmethod
-    def ncon(self) -> torch.Tensor: ...
-
-    @property
-    @abstractmethod
-    def eq_active(self) -> torch.Tensor: ...
-
-    def body_velocities(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """(linear velocity of each body origin, angular velocity), world frame, [N, nbody, 3]."""
-        cvel = self.cvel
-        root = torch.as_tensor(self.model.body_rootid, device=self.device, dtype=torch.long)
-        com = self.subtree_com[:, root]
-        ang, lin = cvel[..., :3], cvel[..., 3:]
-        return lin + torch.cross(ang, self.xpos - com, dim=-1), ang
 
 
 class MujocoBatchBackend(PhysicsBackend):

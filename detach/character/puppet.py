@@ -1,0 +1,229 @@
+"""The puppet: the humanoid's body with an actuated root, for fast CPU studies of task logic.
+
+The puppet cannot fall over. Its pelvis rides on three slides (world x, y, z) and a yaw hinge,
+all actuated, and gravity is compensated on its own bodies, so balance is not part of the
+problem and a scripted oracle or a small PPO run on a CPU can walk it along a trajectory,
+carry a box, climb and sit. Contacts still act on it (walls stop it, seats hold it up), and
+its 32 hinges are PD-held exactly as the humanoid's.
+
+Action space (37 values, each nominally in [-1, 1], clipped):
+
+====== ====================================================================================
+index  meaning
+====== ====================================================================================
+0-31   hinge PD targets, mapped as for the humanoid (`detach.character.actions`)
+32     forward velocity in the heading frame, `ROOT_LIN_SPEED` m/s per unit
+33     lateral (leftward) velocity in the heading frame, `ROOT_LIN_SPEED` m/s per unit
+34     yaw rate, `ROOT_YAW_RATE` rad/s per unit (counter-clockwise seen from above)
+35     pelvis height target: `START_HEIGHT + ROOT_HEIGHT_SCALE * a` metres above z = 0,
+       clipped to `ROOT_HEIGHT_RANGE`
+36     grasp: > 0 asks to hold the nearest dynamic object (see `grasp_condition`)
+====== ====================================================================================
+
+Grasp rule: with the grasp action > 0, a dynamic object is attached to the pelvis by a weld
+equality (keeping the relative pose it has at that instant) when both hands are within
+`GRASP_HAND_DIST` metres of the object's bounding box (distance to the box surface in its
+own frame; 0 inside). It stays attached while the grasp action stays > 0 and is released as
+soon as it drops to <= 0. One object at a time.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import torch
+
+from detach.character.actions import pd_actions, pd_targets
+from detach.character.base import Character, ScriptedCommand, register_character
+from detach.character.body import NUM_DOF, START_HEIGHT
+from detach.torch_math import quat_conj, quat_mul, quat_rotate, quat_rotate_inverse, rotate_yaw, wrap_angle
+
+ROOT_JOINTS: tuple[str, ...] = ("root_x", "root_y", "root_z", "root_yaw")
+ROOT_ACTUATORS: tuple[str, ...] = ("root_vx", "root_vy", "root_z", "root_wz")
+NUM_ACTIONS = 37
+GRASP_ACTION = NUM_ACTIONS - 1
+ROOT_LIN_SPEED = 2.0
+ROOT_YAW_RATE = 3.0
+ROOT_HEIGHT_SCALE = 1.6
+ROOT_HEIGHT_RANGE = (0.05, 2.6)
+GRASP_HAND_DIST = 0.12
+
+_KV_LIN, _KV_YAW = 1500.0, 150.0
+_KP_Z, _KV_Z = 6000.0, 1100.0
+
+
+def root_ctrl(actions: torch.Tensor, yaw: torch.Tensor) -> torch.Tensor:
+    """Root actuator controls [N, 4] (world vx, world vy, height, yaw rate) from actions[:, 32:36].
+
+    Velocities are commanded in the heading frame (forward, left) and rotated by the current
+    yaw (radians) into the world frame, so that the action means the same at any heading.
+    """
+    a = actions.clamp(-1.0, 1.0)
+    fwd, left = a[:, 32] * ROOT_LIN_SPEED, a[:, 33] * ROOT_LIN_SPEED
+    c, s = torch.cos(yaw), torch.sin(yaw)
+    vx, vy = c * fwd - s * left, s * fwd + c * left
+    z = (START_HEIGHT + ROOT_HEIGHT_SCALE * a[:, 35]).clamp(*ROOT_HEIGHT_RANGE)
+    wz = a[:, 34] * ROOT_YAW_RATE
+    return torch.stack((vx, vy, z, wz), dim=-1)
+
+
+def height_to_action(z: torch.Tensor | float) -> torch.Tensor | float:
+    """Inverse of the height mapping: the action value that targets pelvis height z (m)."""
+    return (z - START_HEIGHT) / ROOT_HEIGHT_SCALE
+
+
+def point_box_distance(p: torch.Tensor, box_pos: torch.Tensor, box_quat: torch.Tensor,
+                       half: torch.Tensor) -> torch.Tensor:
+    """Distance (m) from points p [..., 3] to oriented boxes (centre, wxyz quat, half sizes).
+
+    0 inside the box. Broadcasts over leading dimensions.
+    """
+    local = quat_rotate_inverse(box_quat, p - box_pos)
+    excess = (local.abs() - half).clamp(min=0.0)
+    return excess.norm(dim=-1)
+
+
+def grasp_condition(hands: torch.Tensor, box_pos: torch.Tensor, box_quat: torch.Tensor,
+                    half: torch.Tensor) -> torch.Tensor:
+    """bool [N, K]: both hands within `GRASP_HAND_DIST` of dynamic object k.
+
+    hands [N, 2, 3] world positions; box_pos [N, K, 3]; box_quat [N, K, 4] (wxyz);
+    half [K, 3] half sizes.
+    """
+    d = point_box_distance(hands[:, :, None, :], box_pos[:, None], box_quat[:, None], half[None, None])
+    return (d < GRASP_HAND_DIST).all(dim=1)
+
+
+@register_character
+class Puppet(Character):
+    name = "puppet"
+    root_joint = ROOT_JOINTS[0]
+    num_actions = NUM_ACTIONS
+    action_std = 1.0
+    """Its task rides on three root-velocity actions: it learns fastest with std 1 (0.5 and
+    0.2 were slower, benchmarks/RESULTS.md)."""
+    joint_power_weight = 0.0
+    """Its hinges are cosmetic (balance is not its problem): the power penalty, a humanoid
+    regulariser, would only teach it to freeze."""
+    scriptable = True
+
+    # ------------------------------------------------------------------ building
+    def add_root(self, pelvis: mujoco.MjsBody) -> None:
+        """Slides along world x, y, z and a yaw hinge; qpos = world x, y, z, yaw.
+
+        The pelvis body sits at (0, 0, START_HEIGHT); `ref` makes each joint's value equal its
+        world coordinate (displacement = qpos - ref).
+        """
+        for name, axis, ref in ((ROOT_JOINTS[0], (1, 0, 0), 0.0), (ROOT_JOINTS[1], (0, 1, 0), 0.0),
+                                (ROOT_JOINTS[2], (0, 0, 1), START_HEIGHT)):
+            j = pelvis.add_joint(name=name)
+            j.type = mujoco.mjtJoint.mjJNT_SLIDE
+            j.axis = axis
+            j.ref = ref
+            j.armature = 0.1
+        j = pelvis.add_joint(name=ROOT_JOINTS[3])
+        j.type = mujoco.mjtJoint.mjJNT_HINGE
+        j.axis = (0, 0, 1)
+        j.armature = 0.05
+
+    def finish_body(self, spec: mujoco.MjSpec, bodies: dict[str, mujoco.MjsBody]) -> None:
+        """Gravity compensation on its bodies; velocity servos on x, y and yaw, a PD position
+        servo on the pelvis height (added after the 32 hinge actuators)."""
+        for b in bodies.values():
+            b.gravcomp = 1.0
+
+        def servo(name: str, joint: str, kp: float, kv: float, crange, frange) -> None:
+            a = spec.add_actuator(name=name, target=joint)
+            a.trntype = mujoco.mjtTrn.mjTRN_JOINT
+            a.gaintype = mujoco.mjtGain.mjGAIN_FIXED
+            a.biastype = mujoco.mjtBias.mjBIAS_AFFINE
+            a.gainprm[0] = kp if kp > 0 else kv
+            a.biasprm[:3] = (0.0, -kp, -kv)
+            a.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+            a.ctrlrange = crange
+            a.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
+            a.forcerange = frange
+
+        v = ROOT_LIN_SPEED
+        servo(ROOT_ACTUATORS[0], ROOT_JOINTS[0], 0.0, _KV_LIN, (-v, v), (-3000.0, 3000.0))
+        servo(ROOT_ACTUATORS[1], ROOT_JOINTS[1], 0.0, _KV_LIN, (-v, v), (-3000.0, 3000.0))
+        servo(ROOT_ACTUATORS[2], ROOT_JOINTS[2], _KP_Z, _KV_Z, ROOT_HEIGHT_RANGE, (-2500.0, 2500.0))
+        servo(ROOT_ACTUATORS[3], ROOT_JOINTS[3], 0.0, _KV_YAW, (-ROOT_YAW_RATE, ROOT_YAW_RATE), (-600.0, 600.0))
+
+    def link_objects(self, spec: mujoco.MjSpec, object_bodies: dict[int, str]) -> dict[int, str]:
+        """An inactive weld pelvis -> object per movable object, switched on to grasp."""
+        names = {}
+        for index, body in object_bodies.items():
+            e = spec.add_equality(name=f"grasp_obj{index}", type=mujoco.mjtEq.mjEQ_WELD,
+                                  name1="pelvis", name2=body)
+            e.objtype = mujoco.mjtObj.mjOBJ_BODY
+            e.active = False
+            e.data[:] = 0.0
+            e.data[6] = 1.0   # identity relative rotation until the env sets the real pose
+            e.data[10] = 1.0  # torquescale
+            e.solref = (0.02, 1.0)
+            names[index] = e.name
+        return names
+
+    # ------------------------------------------------------------------ run time
+    def bind(self, num_envs, device, backend, movable, hand_ids, root_qpos_adr) -> None:
+        super().bind(num_envs, device, backend, movable, hand_ids, root_qpos_adr)
+        self.grasp_obj = torch.full((num_envs,), -1, dtype=torch.long, device=device)
+        self.movable_half = torch.tensor([list(m.half_size) for m in movable], dtype=torch.float32,
+                                         device=device).reshape(-1, 3)
+        self.movable_index = torch.tensor([m.index for m in movable], dtype=torch.long, device=device)
+
+    def reset(self, ids: torch.Tensor) -> None:
+        self.grasp_obj[ids] = -1
+
+    def held_object(self) -> torch.Tensor:
+        return self.grasp_obj
+
+    def pre_step(self, actions: torch.Tensor, state) -> None:
+        """The grasp rule (module docstring): weld on request when both hands are near."""
+        want = actions[:, GRASP_ACTION] > 0.0
+        held = self.grasp_obj >= 0
+        release = (held & ~want).nonzero(as_tuple=False).squeeze(-1)
+        for k, obj in enumerate(self.movable):
+            r = release[self.grasp_obj[release] == k]
+            self.backend.set_equality(r, obj.link_eq, torch.zeros(len(r)))
+        self.grasp_obj[release] = -1
+        cand = (want & (self.grasp_obj < 0)).nonzero(as_tuple=False).squeeze(-1)
+        if len(cand) == 0 or len(self.movable) == 0:
+            return
+        dpos, dquat = state.obj_pos[cand][:, self.movable_index], state.obj_quat[cand][:, self.movable_index]
+        hands = state.body_pos[cand][:, self.hand_ids]
+        ok = grasp_condition(hands, dpos, dquat, self.movable_half)
+        first = torch.where(ok.any(-1), ok.float().argmax(-1), torch.full_like(cand, -1))
+        for k, obj in enumerate(self.movable):
+            sel = first == k
+            if not bool(sel.any()):
+                continue
+            e = cand[sel]
+            pq, pp = state.root_quat[e], state.root_pos[e]
+            rel_p = quat_rotate(quat_conj(pq), dpos[sel, k] - pp)
+            rel_q = quat_mul(quat_conj(pq), dquat[sel, k])
+            data = torch.zeros(len(e), 12, device=self.device)
+            data[:, 3:6], data[:, 6:10], data[:, 10] = rel_p, rel_q, 1.0
+            self.backend.set_equality(e, obj.link_eq, torch.ones(len(e)), data)
+            self.grasp_obj[e] = k
+
+    def controls(self, actions: torch.Tensor, qpos: torch.Tensor) -> torch.Tensor:
+        yaw = qpos[:, self.root_qpos_adr + 3]
+        return torch.cat((pd_targets(actions, self.dof_lo, self.dof_hi), root_ctrl(actions, yaw)), dim=-1)
+
+    def write_root(self, qpos, qvel, q_adr, v_adr, xy, height, yaw, tilt, lin, ang) -> None:
+        qpos[:, q_adr:q_adr + 4] = torch.stack((xy[:, 0], xy[:, 1], height, yaw), dim=-1)
+        w = rotate_yaw(yaw, lin)
+        qvel[:, v_adr:v_adr + 4] = torch.stack((w[:, 0], w[:, 1], w[:, 2], ang[:, 2]), dim=-1)
+
+    def scripted_actions(self, cmd: ScriptedCommand) -> torch.Tensor:
+        a = torch.zeros(len(cmd.yaw), NUM_ACTIONS, device=cmd.yaw.device)
+        a[:, :NUM_DOF] = pd_actions(cmd.hinges, self.dof_lo, self.dof_hi)
+        c, s = torch.cos(cmd.yaw), torch.sin(cmd.yaw)
+        v = cmd.velocity
+        a[:, 32] = (c * v[:, 0] + s * v[:, 1]) / ROOT_LIN_SPEED
+        a[:, 33] = (-s * v[:, 0] + c * v[:, 1]) / ROOT_LIN_SPEED
+        a[:, 34] = (5.0 * wrap_angle(cmd.yaw_target - cmd.yaw)).clamp(-ROOT_YAW_RATE, ROOT_YAW_RATE) / ROOT_YAW_RATE
+        a[:, 35] = height_to_action(cmd.height)
+        a[:, 36] = cmd.grasp
+        return a.clamp(-1.0, 1.0)

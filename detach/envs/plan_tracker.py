@@ -1,0 +1,155 @@
+"""Each env's progress through the plan: current subtask, transitions, statistics, scores.
+
+Transition rule (the paper's): a subtask is complete once its skill's anchor-to-target
+distance stays <= `success_threshold` (0.3 m) for `max_transition_steps` consecutive control
+steps (60 in training, 20 in evaluation); the next subtask then starts at once. Every skill
+of the plan (`detach.skills`) supplies its target, distance, statistics and score; this
+object owns the per-env bookkeeping and builds the per-step `SkillContext`.
+
+What an evaluator reads (`progress()`): per env the current `subtask`; per env and subtask
+`done` (transition fired), `score` (the skill's success score), `start` / `end` (control steps
+since the episode start, -1 if not reached), `exec_time` (s), the skills' statistics (e.g.
+`grasped`, `on_path`, `path_steps`), and `lh_success` (every subtask scored 1).
+"""
+
+from __future__ import annotations
+
+import torch
+
+from detach.sim.state import SceneIndex, SimState
+from detach.skills import Skill, Subtask, skill_class, skill_names
+from detach.skills.context import SkillContext, SkillServices
+from detach.skills.plan import PlanTensors
+
+
+class PlanTracker:
+    def __init__(self, plan: tuple[Subtask, ...], services: SkillServices, index: SceneIndex,
+                 rest_z: torch.Tensor, num_envs: int) -> None:
+        self.plan, self.services, self.index, self.rest_z = plan, services, index, rest_z
+        d, n, s = services.device, num_envs, len(plan)
+        self.tensors = PlanTensors.build(plan, d)
+        names = skill_names()
+        present = {sub.skill for sub in plan}
+        self.skills: dict[int, Skill] = {}
+        """Registry index -> bound skill, for the skills of this plan (registry order)."""
+        for i, name in enumerate(names):
+            if name in present:
+                self.skills[i] = skill_class(name)()
+                self.skills[i].bind(plan, services)
+        self.follows_path = torch.tensor([skill_class(name).follows_path for name in names], device=d)
+        self.num_subtasks = s
+        z = lambda *shape, dtype=torch.long: torch.zeros(*shape, dtype=dtype, device=d)  # noqa: E731
+        self.subtask, self.hold = z(n), z(n)
+        self.done = z(n, s, dtype=torch.bool)
+        self.start_step, self.end_step = z(n, s) - 1, z(n, s) - 1
+        self.stats = {k: z(n, s, dtype=dt) for sk in self.skills.values() for k, dt in sk.stats.items()}
+        self.advanced = False
+
+    # ------------------------------------------------------------------ per step
+    def context(self, st: SimState, steps: torch.Tensor, held: torch.Tensor, joint_power_weight: float
+                ) -> SkillContext:
+        """The skills' view of this step, with each env's target and distance filled in."""
+        sub, plan = self.subtask, self.tensors
+        obj = plan.obj[sub]
+        n, dev = len(sub), self.services.device
+        if self.index.obj_body.numel():
+            oc = obj.clamp(min=0)
+            ar = torch.arange(n, device=dev)
+            opos, oquat, olin = st.obj_pos[ar, oc], st.obj_quat[ar, oc], st.obj_lin[ar, oc]
+            half = self.index.obj_half[oc]
+        else:
+            opos = olin = half = torch.zeros(n, 3, device=dev)
+            oquat = torch.tensor([1.0, 0, 0, 0], device=dev).expand(n, 4)
+        traj = self.services.trajectory
+        ref = traj.reference(steps, 0.0)
+        dt = self.services.dt
+        dyn = self.index.dyn
+        ctx = SkillContext(
+            services=self.services, state=st, skill=plan.skill[sub], subtask=sub, obj=obj, obj_pos=opos,
+            obj_quat=oquat, obj_lin=olin, obj_half=half, obj_rest_z=self.rest_z[obj],
+            fixed_target=plan.fixed_target[sub], has_fixed=plan.has_fixed[sub], held=held, steps=steps,
+            joint_power=st.joint_power * joint_power_weight,
+            dyn_speed=st.obj_lin[:, dyn].norm(dim=-1) if len(dyn) else torch.zeros(n, 0, device=dev),
+            ref_xy=ref, ref_vel=(traj.reference(steps, dt) - ref) / dt)
+        target = torch.zeros(n, 3, device=dev)
+        for i, skill in self.skills.items():
+            target = torch.where((ctx.skill == i)[:, None], skill.target(ctx), target)
+        ctx.target = target
+        dist = torch.zeros(n, device=dev)
+        for i, skill in self.skills.items():
+            dist = torch.where(ctx.skill == i, skill.distance(ctx), dist)
+        ctx.dist = dist
+        return ctx
+
+    def advance(self, ctx: SkillContext, steps: torch.Tensor) -> torch.Tensor:
+        """Accumulate statistics and hold counters; fire transitions. Returns bool [N]: the
+        last subtask completed at this step."""
+        for i, skill in self.skills.items():
+            active = ctx.skill == i
+            if bool(active.any()):
+                skill.update_stats(ctx, active, self.stats)
+        ar, sub = torch.arange(len(steps), device=steps.device), self.subtask
+        self.hold = torch.where(ctx.dist <= self.services.cfg.env.success_threshold, self.hold + 1,
+                                torch.zeros_like(self.hold))
+        complete = self.hold >= self.services.max_transition_steps
+        self.done[ar, sub] |= complete
+        self.end_step[ar, sub] = torch.where(complete, steps, self.end_step[ar, sub])
+        last = sub == self.num_subtasks - 1
+        adv = (complete & ~last).nonzero(as_tuple=False).squeeze(-1)
+        self.advanced = len(adv) > 0
+        if len(adv):
+            self.subtask[adv] += 1
+            self.hold[adv] = 0
+            self.start(adv, steps, ctx.state.root_pos[adv, :2])
+        return complete & last
+
+    def start(self, ids: torch.Tensor, steps: torch.Tensor, root_xy: torch.Tensor) -> None:
+        """Stamp the start of each env's current subtask and let its skill set it up."""
+        sub = self.subtask[ids]
+        self.start_step[ids, sub] = steps[ids]
+        self.services.trajectory.restart(ids, steps[ids])
+        skill = self.tensors.skill[sub]
+        for i, s in self.skills.items():
+            m = skill == i
+            if bool(m.any()):
+                s.start(ids[m], sub[m], root_xy[m])
+        park = ~self.follows_path[skill]
+        if bool(park.any()):
+            self.services.trajectory.park(ids[park], root_xy[park])
+
+    def reset(self, ids: torch.Tensor, steps: torch.Tensor, root_xy: torch.Tensor) -> None:
+        self.subtask[ids] = 0
+        self.hold[ids] = 0
+        self.done[ids] = False
+        self.start_step[ids] = -1
+        self.end_step[ids] = -1
+        for v in self.stats.values():
+            v[ids] = 0
+        self.start(ids, steps, root_xy)
+
+    # ------------------------------------------------------------------ results
+    def scores(self) -> torch.Tensor:
+        """[N, S] success score of every subtask (0 for those not reached)."""
+        sk = self.tensors.skill[None, :].expand_as(self.done)
+        out = self.done.float()
+        for i, skill in self.skills.items():
+            out = torch.where(sk == i, skill.score(self.done, self.stats), out)
+        return out
+
+    def progress(self) -> dict[str, torch.Tensor]:
+        """Per-env plan progress (clones); see the module docstring."""
+        scores = self.scores()
+        span = (self.end_step - self.start_step).float() * self.services.dt
+        return dict(subtask=self.subtask.clone(), done=self.done.clone(), score=scores,
+                    start=self.start_step.clone(), end=self.end_step.clone(),
+                    exec_time=torch.where(self.end_step >= 0, span, torch.full_like(span, float("nan"))),
+                    lh_success=(scores >= 1.0).all(dim=-1), **{k: v.clone() for k, v in self.stats.items()})
+
+    def episode_log(self, prog: dict[str, torch.Tensor], ids: torch.Tensor,
+                    terminations: tuple[str, ...]) -> dict[str, torch.Tensor]:
+        """Values of the finished episodes ids for the training log (rsl-rl's `Episode/` names)."""
+        log = {"Episode/length": prog["length"][ids].float(), "Success/lh": prog["lh_success"][ids].float()}
+        log.update({f"Episode/{name}": prog[name][ids].float() for name in terminations})
+        for i, s in enumerate(self.plan):
+            log[f"Success/{i}_{s.skill}"] = prog["score"][ids, i]
+        return log

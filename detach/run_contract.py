@@ -1,0 +1,361 @@
+"""The run-folder format: file names, MCAP topics and the JSON messages, as one contract.
+
+A run folder is the only thing a run leaves behind and the only thing the dashboard reads, so
+its format is defined here once and every writer and reader (training, evaluation, tables,
+`detach-run list`, the dashboard) uses these names and classes. It imports nothing of the
+project: any layer may read it. docs/ARCHITECTURE.md ("Run folder") describes it in prose.
+
+    runs/<YYYYmmdd-HHMMSS>-<task>-<model>-s<seed>/
+        config.yaml          fully resolved RunConfig (reloads identically)
+        status.json          `Status`
+        stdout.log           everything the run printed
+        log.mcap             /metrics `MetricsMessage` per iteration, /scene `SceneMessage`,
+                             /episode/bodies `EpisodeFrame` per recorded frame, /tf (Foxglove)
+        checkpoints/model_<iteration>.pt
+        eval.json            `EvalResult` on the run's own task; eval_<task>.json on another
+
+`from_json` raises `ContractError` (a ValueError with one line saying what is wrong) for a
+message that does not follow the format, so readers can skip or report it.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+CONFIG_FILE = "config.yaml"
+STATUS_FILE = "status.json"
+STDOUT_FILE = "stdout.log"
+LOG_FILE = "log.mcap"
+CHECKPOINT_DIR = "checkpoints"
+EVAL_FILE = "eval.json"
+EVAL_GLOB = "eval*.json"
+RUN_MARKERS = (CONFIG_FILE, STATUS_FILE)
+"""A folder holding either file is a run folder."""
+
+METRICS_TOPIC = "/metrics"
+SCENE_TOPIC = "/scene"
+EPISODE_TOPIC = "/episode/bodies"
+TF_TOPIC = "/tf"
+
+RUN_STATES: tuple[str, ...] = ("queued", "running", "finished", "failed", "interrupted")
+LIVE_STATES: tuple[str, ...] = ("queued", "running")
+"""States in which a run's files may still grow."""
+
+_CHECKPOINT = re.compile(r"^model_(\d+)\.pt$")
+
+
+class ContractError(ValueError):
+    """A file or message that does not follow the run-folder format."""
+
+
+def checkpoint_file(iteration: int) -> str:
+    """File name of the checkpoint after `iteration` (the last completed one)."""
+    return f"model_{int(iteration)}.pt"
+
+
+def checkpoint_iteration(name: str) -> int | None:
+    """Iteration of a checkpoint file name, None if the name is not one."""
+    m = _CHECKPOINT.match(name)
+    return int(m.group(1)) if m else None
+
+
+def eval_file(task: str | None = None) -> str:
+    """eval.json (the run's own task, task None) or eval_<task>.json (another task)."""
+    return EVAL_FILE if task is None else f"eval_{task}.json"
+
+
+def is_eval_file(name: str) -> bool:
+    return name.startswith("eval") and name.endswith(".json")
+
+
+# ------------------------------------------------------------------------------- checks
+def _need(data: Any, key: str, kinds: type | tuple[type, ...], where: str, optional: bool = False) -> Any:
+    if not isinstance(data, dict):
+        raise ContractError(f"{where}: expected an object, found {type(data).__name__}")
+    if key not in data or data[key] is None:
+        if optional:
+            return None
+        raise ContractError(f"{where}: missing '{key}'")
+    value = data[key]
+    if isinstance(value, bool) and bool not in (kinds if isinstance(kinds, tuple) else (kinds,)):
+        raise ContractError(f"{where}: '{key}' must be {_kind_name(kinds)}, found {value!r}")
+    if not isinstance(value, kinds):
+        raise ContractError(f"{where}: '{key}' must be {_kind_name(kinds)}, found {type(value).__name__} {value!r:.40}")
+    return value
+
+
+def _kind_name(kinds: type | tuple[type, ...]) -> str:
+    names = {int: "an integer", float: "a number", str: "a string", list: "a list", dict: "an object",
+             bool: "true or false"}
+    kinds = kinds if isinstance(kinds, tuple) else (kinds,)
+    return " or ".join(dict.fromkeys(names.get(k, k.__name__) for k in kinds))
+
+
+def _number(data: Any, key: str, where: str, optional: bool = False, finite: bool = True) -> float | None:
+    value = _need(data, key, (int, float), where, optional)
+    if value is None:
+        return None
+    if finite and not math.isfinite(value):
+        raise ContractError(f"{where}: '{key}' is {value} (not a finite number)")
+    return float(value)
+
+
+# ------------------------------------------------------------------------------- status.json
+@dataclass
+class Status:
+    """status.json: where a run stands. `updated` and `started` are Unix times (s)."""
+
+    state: str
+    iteration: int = 0
+    pid: int | None = None
+    started: float | None = None
+    updated: float | None = None
+    error: str | None = None
+    cell: str | None = None
+    """The sweep cell this run belongs to (`<sweep>/<task>/<model>/s<seed>`), if any."""
+
+    def to_json(self) -> dict[str, Any]:
+        return {k: v for k, v in asdict(self).items() if v is not None or k in ("error", "started", "pid")}
+
+    @classmethod
+    def from_json(cls, data: Any) -> "Status":
+        state = _need(data, "state", str, STATUS_FILE)
+        if state not in RUN_STATES:
+            raise ContractError(f"{STATUS_FILE}: unknown state {state!r}; expected one of {', '.join(RUN_STATES)}")
+        return cls(state=state, iteration=int(_need(data, "iteration", int, STATUS_FILE, optional=True) or 0),
+                   pid=_need(data, "pid", int, STATUS_FILE, optional=True),
+                   started=_number(data, "started", STATUS_FILE, optional=True),
+                   updated=_number(data, "updated", STATUS_FILE, optional=True),
+                   error=_need(data, "error", str, STATUS_FILE, optional=True),
+                   cell=_need(data, "cell", str, STATUS_FILE, optional=True))
+
+
+# ------------------------------------------------------------------------------- log.mcap
+@dataclass
+class MetricsMessage:
+    """/metrics: one message per training iteration; `values` are flat scalars named with
+    rsl-rl's prefixes (`Loss/`, `Train/`, `Perf/`, `Episode/`, ...)."""
+
+    iteration: int
+    stage: str = ""
+    values: dict[str, float] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"iteration": int(self.iteration), "stage": self.stage,
+                **{k: float(v) for k, v in self.values.items()}}
+
+    @classmethod
+    def from_json(cls, data: Any) -> "MetricsMessage":
+        it = _need(data, "iteration", int, METRICS_TOPIC)
+        values = {k: float(v) for k, v in data.items()
+                  if k not in ("iteration", "stage") and isinstance(v, (int, float)) and not isinstance(v, bool)}
+        return cls(it, str(data.get("stage", "")), values)
+
+
+@dataclass
+class SceneObject:
+    name: str
+    category: str
+    mesh: str
+    """The asset's mesh.obj (object frame, centred on its bbox): a path relative to the
+    assets root the run used (`<category>/<model_id>/mesh.obj`)."""
+    pos: list[float]
+    quat: list[float]
+    """wxyz."""
+    bbox: list[float]
+    static: bool
+
+
+@dataclass
+class SceneTarget:
+    subtask: int
+    skill: str
+    pos: list[float]
+    color: list[int] = field(default_factory=lambda: [220, 40, 40])
+    """The skill's display colour (RGB 0-255)."""
+
+
+@dataclass
+class BodyGeom:
+    """One collision primitive of the character, in its body's frame (MuJoCo geom size)."""
+
+    body: str
+    type: str
+    """capsule, sphere or box."""
+    size: list[float]
+    pos: list[float]
+    quat: list[float]
+
+
+@dataclass
+class SceneMessage:
+    """/scene: the static scene of a run (written at the start and by each evaluation)."""
+
+    task: str
+    objects: list[SceneObject]
+    trajectories: dict[str, list[list[float]]]
+    targets: list[SceneTarget]
+    bodies: list[str]
+    body_geoms: list[BodyGeom]
+
+    def to_json(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_json(cls, data: Any) -> "SceneMessage":
+        w = SCENE_TOPIC
+        objects = []
+        for i, o in enumerate(_need(data, "objects", list, w)):
+            where = f"{w} objects[{i}]"
+            objects.append(SceneObject(
+                name=str(_need(o, "name", str, where)), category=str(o.get("category", "")),
+                mesh=str(_need(o, "mesh", str, where)), pos=_vec(o, "pos", 3, where), quat=_vec(o, "quat", 4, where),
+                bbox=_vec(o, "bbox", 3, where), static=bool(o.get("static", True))))
+        targets = [SceneTarget(int(_need(t, "subtask", int, f"{w} targets[{i}]")),
+                               str(_need(t, "skill", str, f"{w} targets[{i}]")),
+                               _vec(t, "pos", 3, f"{w} targets[{i}]"),
+                               [int(c) for c in t.get("color", [220, 40, 40])][:3])
+                   for i, t in enumerate(_need(data, "targets", list, w))]
+        trajectories = {str(k): [[float(x) for x in p][:2] for p in v]
+                        for k, v in _need(data, "trajectories", dict, w).items()}
+        geoms = [BodyGeom(str(g["body"]), str(g["type"]), [float(x) for x in g["size"]],
+                          [float(x) for x in g["pos"]], [float(x) for x in g["quat"]])
+                 for g in data.get("body_geoms", []) if isinstance(g, dict)]
+        return cls(str(data.get("task", "")), objects, trajectories, targets,
+                   [str(b) for b in data.get("bodies", [])], geoms)
+
+
+def _vec(data: Any, key: str, n: int, where: str) -> list[float]:
+    value = _need(data, key, list, where)
+    if len(value) != n or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in value):
+        raise ContractError(f"{where}: '{key}' must be {n} finite numbers, found {value!r:.60}")
+    return [float(v) for v in value]
+
+
+@dataclass
+class EpisodeFrame:
+    """/episode/bodies: one frame of a recorded episode. `to_json` writes "episode" first
+    (readers may find a frame's episode without parsing the whole message)."""
+
+    episode: int
+    frame: int
+    time: float
+    """Seconds since the episode started."""
+    bodies: list[str]
+    pos: list[list[float]]
+    quat: list[list[float]]
+    objects: list[dict[str, Any]] = field(default_factory=list)
+    """Dynamic objects: {"name", "pos", "quat"}."""
+    subtask: int = 0
+    skill: str = ""
+
+    def to_json(self) -> dict[str, Any]:
+        return {"episode": int(self.episode), "frame": int(self.frame), "time": float(self.time),
+                "bodies": list(self.bodies),
+                "pos": [[round(float(v), 5) for v in p] for p in self.pos],
+                "quat": [[round(float(v), 5) for v in q] for q in self.quat],
+                "objects": list(self.objects), "subtask": int(self.subtask), "skill": self.skill}
+
+
+# ------------------------------------------------------------------------------- eval.json
+@dataclass
+class RateResult:
+    """A success rate with its confidence interval (all in [0, 1]) over n trials."""
+
+    rate: float
+    ci: list[float]
+    n: int
+
+    @classmethod
+    def from_json(cls, data: Any, where: str) -> "RateResult":
+        rate = _number(data, "rate", where)
+        ci = _need(data, "ci", list, where)
+        if len(ci) != 2 or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in ci):
+            raise ContractError(f"{where}: 'ci' must be two finite numbers, found {ci!r:.60}")
+        return cls(rate, [float(ci[0]), float(ci[1])], int(_need(data, "n", int, where)))
+
+
+@dataclass
+class SubtaskResult(RateResult):
+    index: int = 0
+    skill: str = ""
+    mean_time: float | None = None
+    """Mean execution time (s) of the subtask over the trials that completed it."""
+
+    def to_json(self) -> dict[str, Any]:
+        return {"index": self.index, "skill": self.skill, "rate": self.rate, "ci": self.ci, "n": self.n,
+                "mean_time": self.mean_time}
+
+
+@dataclass
+class EvalResult:
+    """eval.json / eval_<task>.json: the evaluation of one checkpoint on one task."""
+
+    task: str
+    model: str
+    trials: int
+    plan: list[str]
+    subtasks: list[SubtaskResult]
+    lh_success: RateResult
+    """Every subtask of the plan succeeded in the same episode."""
+    sgr: float
+    confidence: float = 0.95
+    trained_on: str | None = None
+    seed: int | None = None
+    checkpoint: str | None = None
+    iteration: int | None = None
+    mean_execution_time: float | None = None
+    """Mean episode time (s) to plan completion, failure or time-out."""
+    execution_time_ci: list[float] | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return {"task": self.task, "trained_on": self.trained_on, "model": self.model, "seed": self.seed,
+                "checkpoint": self.checkpoint, "iteration": self.iteration, "trials": self.trials,
+                "confidence": self.confidence, "plan": list(self.plan),
+                "subtasks": [s.to_json() for s in self.subtasks],
+                "lh_success": asdict(self.lh_success), "mean_execution_time": self.mean_execution_time,
+                "execution_time_ci": self.execution_time_ci, "sgr": self.sgr}
+
+    @classmethod
+    def from_json(cls, data: Any, where: str = EVAL_FILE) -> "EvalResult":
+        subtasks = []
+        for i, s in enumerate(_need(data, "subtasks", list, where)):
+            w = f"{where}: subtasks[{i}]"
+            r = RateResult.from_json(s, w)
+            subtasks.append(SubtaskResult(r.rate, r.ci, r.n, index=int(_need(s, "index", int, w)),
+                                          skill=str(_need(s, "skill", str, w)),
+                                          mean_time=_number(s, "mean_time", w, optional=True)))
+        plan = [str(p) for p in _need(data, "plan", list, where)]
+        ci = data.get("execution_time_ci") if isinstance(data, dict) else None
+        return cls(task=str(_need(data, "task", str, where)), model=str(_need(data, "model", str, where)),
+                   trials=int(_need(data, "trials", int, where)), plan=plan, subtasks=subtasks,
+                   lh_success=RateResult.from_json(_need(data, "lh_success", dict, where), f"{where}: lh_success"),
+                   sgr=float(_number(data, "sgr", where)),
+                   confidence=float(_number(data, "confidence", where, optional=True) or 0.95),
+                   trained_on=_need(data, "trained_on", str, where, optional=True),
+                   seed=_need(data, "seed", int, where, optional=True),
+                   checkpoint=_need(data, "checkpoint", str, where, optional=True),
+                   iteration=_need(data, "iteration", int, where, optional=True),
+                   mean_execution_time=_number(data, "mean_execution_time", where, optional=True),
+                   execution_time_ci=[float(v) for v in ci] if isinstance(ci, list) else None)
+
+
+MCAP_SCHEMAS: dict[str, dict[str, Any]] = {
+    METRICS_TOPIC: {"title": "detach.Metrics", "type": "object",
+                    "properties": {"iteration": {"type": "integer"}, "stage": {"type": "string"}},
+                    "required": ["iteration"], "additionalProperties": {"type": "number"}},
+    SCENE_TOPIC: {"title": "detach.Scene", "type": "object",
+                  "properties": {"objects": {"type": "array", "items": {"type": "object"}},
+                                 "trajectories": {"type": "object"}, "targets": {"type": "array"}}},
+    EPISODE_TOPIC: {"title": "detach.EpisodeBodies", "type": "object",
+                    "properties": {"episode": {"type": "integer"}, "frame": {"type": "integer"},
+                                   "time": {"type": "number"}, "bodies": {"type": "array", "items": {"type": "string"}},
+                                   "pos": {"type": "array"}, "quat": {"type": "array"},
+                                   "objects": {"type": "array"}, "subtask": {"type": "integer"},
+                                   "skill": {"type": "string"}},
+                    "required": ["episode", "frame", "bodies", "pos", "quat"]},
+}
+"""JSON schemas of the project's topics, registered in every log.mcap."""

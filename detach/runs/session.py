@@ -1,0 +1,97 @@
+"""Composition root of a run folder: assets -> training (`detach.train.setup`) -> evaluation.
+
+`train_and_evaluate` trains a run folder's config (or resumes it from its latest checkpoint)
+and then evaluates it; `evaluate_run` evaluates a checkpoint on the run's task or another one
+(the paper's environment-generalisation experiment: train on LH1, evaluate on LH2/LH3).
+Missing assets are built before any environment exists, with a visible progress line.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Sequence
+
+import torch
+
+from detach.config import load_task
+from detach.config_schema import RunConfig
+from detach.envs.lh_env import make_env
+from detach.eval.episodes import run_evaluation
+from detach.eval.scene import scene_message
+from detach.models.factory import build_actor_critic
+from detach.run_contract import eval_file
+from detach.runs.folder import RunFolder, atomic_write_json
+from detach.runs.mcap_log import RunLogWriter
+from detach.train.setup import build_runner, default_action_std, prepare_assets, seed_everything
+
+
+def train_and_evaluate(run: RunFolder, resume: bool, eval_tasks: Sequence[Path] = (),
+                       trials: int | None = None, evaluate: bool = True,
+                       device: str | None = None) -> None:
+    cfg = run.config()
+    device = device or cfg.device
+    log = RunLogWriter(run.log_path, append=resume)
+    try:
+        env, runner = build_runner(cfg, run.checkpoints, device, log)
+        start = 0
+        if resume:
+            checkpoint = run.latest_checkpoint()
+            start = runner.load_checkpoint(checkpoint)
+            print(f"resumed from {checkpoint.name}: continuing at iteration {start}", flush=True)
+        else:
+            log.log_scene(scene_message(env, cfg))
+        runner.on_iteration = lambda it, _m: run.set_state("running", iteration=it + 1)
+        runner.learn(cfg.train.max_iterations)
+    finally:
+        log.close()
+    if evaluate:
+        evaluate_run(run, None, None, trials, device)
+        for task in eval_tasks:
+            evaluate_run(run, task, None, trials, device)
+
+
+def eval_config(cfg: RunConfig, task_path: Path | None) -> RunConfig:
+    """The run's config with another task swapped in (sim/env/model settings unchanged)."""
+    if task_path is None:
+        return cfg
+    return dataclasses.replace(cfg, task=load_task(task_path), task_name=Path(task_path).stem)
+
+
+def evaluate_run(run: RunFolder, task_path: Path | None, checkpoint: Path | None,
+                 trials: int | None, device: str | None = None, record: bool = True) -> Path:
+    """Evaluate the policy; writes eval.json (own task) or eval_<task>.json (another task).
+
+    On the run's own task (and with `record`) the scene and env 0's first episode go to
+    log.mcap; never pass record=True while another process still writes that log."""
+    train_cfg = run.config()
+    cfg = eval_config(train_cfg, task_path)
+    device = device or cfg.device
+    checkpoint = checkpoint or run.latest_checkpoint()
+    trials = trials or cfg.eval.trials
+    prepare_assets(cfg.task)
+    seed_everything(cfg.seed + 1)
+    env = make_env(cfg, num_envs=min(cfg.eval.num_envs, trials), device=device, eval_mode=True)
+    state = torch.load(checkpoint, map_location=device, weights_only=True)
+    actor, _critic = build_actor_critic(cfg.model, env.obs_spec, env.get_observations(),
+                                        num_actions=env.num_actions, default_std=default_action_std(cfg))
+    actor.load_state_dict(state["actor_state_dict"])
+    actor.to(device).eval()
+    own = cfg.task_name == train_cfg.task_name
+    log = RunLogWriter(run.log_path, append=True) if own and record else None
+    try:
+        result = run_evaluation(env, lambda obs: actor(obs), trials, cfg, recorder=log,
+                                episode_id=max(int(state.get("iter", 0)), 0))
+    finally:
+        if log is not None:
+            log.close()
+    result.trained_on, result.model, result.seed = train_cfg.task_name, cfg.model_name, cfg.seed
+    result.checkpoint = str(checkpoint.relative_to(run.path)) if checkpoint.is_relative_to(run.path) \
+        else str(checkpoint)
+    result.iteration = int(state.get("iter", -1))
+    path = run.path / eval_file(None if own else cfg.task_name)
+    atomic_write_json(path, result.to_json())
+    lh = result.lh_success
+    print(f"evaluation on {cfg.task_name}: LH success {lh.rate:.2f} [{lh.ci[0]:.2f}, {lh.ci[1]:.2f}] over "
+          f"{result.trials} trials; " + ", ".join(f"{s.skill} {s.rate:.2f}" for s in result.subtasks), flush=True)
+    return path

@@ -1,0 +1,142 @@
+"""The `Skill` interface: everything about one skill of a plan, in one class.
+
+A skill module (follow, carry, climb, sit, or a plug-in) subclasses `Skill` and registers it
+(`detach.skills.register_skill`). It owns:
+
+- plan entries: which target sources it accepts (`sources`) and `compile_entry`, the check of
+  one plan entry against the task (errors are `PlanError`s naming the key);
+- targets: `target` (the world target of its subtasks each step) and `display_target` (a
+  static one for drawing the scene), `distance` (anchor-to-target distance that the
+  transition rule holds under `success_threshold`);
+- per-subtask statistics it accumulates (`stats`, updated in `update_stats`) and its success
+  score (`score`: 1 success, 0 failure, partial credit allowed);
+- reward terms (`reward_terms`, name -> `RewardTerm` with a default weight; YAML weights
+  override them as `rewards.terms.<skill>/<term>`);
+- extra episode terminations (`termination_names`, `terminations`);
+- its piece of the scripted oracle (`oracle`);
+- the motion-clip labels of its style prior (`motion_labels`);
+- display: `display_name` and `color` (eval tables, the dashboard).
+
+All tensors are batched over envs ([N, ...]) on the env's device, world frame, metres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Callable, ClassVar
+
+import numpy as np
+import torch
+
+if TYPE_CHECKING:  # pragma: no cover - types only
+    from detach.config_schema import TaskCfg
+    from detach.skills.context import OracleCommand, SkillContext, SkillServices
+    from scene_builder.scene import SceneInfo
+
+RAND = -1
+"""Source index of `traj_rand`: a procedural trajectory per episode."""
+
+
+class PlanError(ValueError):
+    """A plan entry a skill cannot run; `key` is the offending task key path."""
+
+    def __init__(self, key: tuple, message: str) -> None:
+        super().__init__(message)
+        self.key = key
+
+
+@dataclass(frozen=True)
+class Subtask:
+    """One compiled plan entry (static: the same for every env)."""
+
+    index: int
+    skill: str
+    """Canonical skill name."""
+    source: str
+    """'traj', 'tarpos' or 'scene'."""
+    ref: int
+    """K of `source_K` (RAND for traj_rand)."""
+    obj: int = -1
+    """Object of the subtask (the box for carry, the object for climb/sit), else -1."""
+    fixed_target: tuple[float, float, float] | None = None
+    """World target when it does not move: tarpos_K, or the last waypoint (z = 0) of traj_K."""
+
+
+@dataclass(frozen=True)
+class RewardTerm:
+    """A reward term: fn(ctx) -> [N] values (in [0, 1] by convention) and its default weight."""
+
+    fn: Callable[["SkillContext"], torch.Tensor]
+    weight: float
+
+
+class Skill:
+    """Base class of skills; see the module docstring. Defaults suit a skill whose target is
+    a fixed point and whose success is "the transition fired"."""
+
+    name: ClassVar[str]
+    aliases: ClassVar[tuple[str, ...]] = ()
+    """Other names accepted in task YAMLs (e.g. TokenHSI's `traj` for follow)."""
+    display_name: ClassVar[str]
+    color: ClassVar[tuple[int, int, int]] = (220, 40, 40)
+    motion_labels: ClassVar[tuple[str, ...]] = ()
+    sources: ClassVar[tuple[str, ...]] = ("tarpos",)
+    needs_object: ClassVar[bool] = False
+    """`target_object` must name a scene object (checked by `compile_entry`)."""
+    follows_path: ClassVar[bool] = False
+    """Its subtasks track the trajectory reference (observations show the path ahead)."""
+    stats: ClassVar[dict[str, torch.dtype]] = {}
+    """Per-subtask statistics [N, S] it accumulates, by name and dtype (zeroed at reset)."""
+    termination_names: ClassVar[tuple[str, ...]] = ()
+    reward_terms: ClassVar[dict[str, RewardTerm]] = {}
+
+    # ------------------------------------------------------------------ plan
+    def compile_entry(self, index: int, source: str, ref: int, obj: int, task: "TaskCfg") -> Subtask:
+        """Check plan entry `index` (source already known to exist) and resolve its target."""
+        if source not in self.sources:
+            accepted = ", ".join(f"{s}_K" for s in self.sources)
+            raise PlanError(("sample_target_from", index), f"'{self.name}' takes its target from "
+                            f"{accepted}, found {source}_{ref}")
+        if self.needs_object and not 0 <= obj < len(task.scene):
+            raise PlanError(("target_object", index), f"object index {obj} for '{self.name}' does not "
+                            f"exist (scene has {len(task.scene)} objects)")
+        fixed = tuple(float(v) for v in task.target_positions[ref]) if source == "tarpos" else None
+        target_obj = ref if source == "scene" else (obj if self.needs_object else -1)
+        return Subtask(index, self.name, source, ref, obj=target_obj, fixed_target=fixed)  # type: ignore[arg-type]
+
+    def bind(self, plan: tuple[Subtask, ...], services: "SkillServices") -> None:
+        """Per-environment set-up for the subtasks of `plan` that are this skill's."""
+        self.plan, self.services, self.device = plan, services, services.device
+
+    def display_target(self, sub: Subtask, scene: "SceneInfo") -> np.ndarray | None:
+        """A world point to draw for the subtask (the target at the episode start)."""
+        return None if sub.fixed_target is None else np.asarray(sub.fixed_target, dtype=np.float64)
+
+    # ------------------------------------------------------------------ every step
+    def start(self, ids: torch.Tensor, subtask: torch.Tensor, root_xy: torch.Tensor) -> None:
+        """Envs ids [n] just started one of this skill's subtasks (plan indices subtask [n]),
+        with the pelvis at root_xy [n, 2]."""
+
+    def target(self, ctx: "SkillContext") -> torch.Tensor:
+        """World target [N, 3] for envs on this skill (values elsewhere are ignored)."""
+        return ctx.fixed_target
+
+    def distance(self, ctx: "SkillContext") -> torch.Tensor:
+        """Anchor-to-target distance [N], metres (default: pelvis to target, 3-D)."""
+        return (ctx.state.root_pos - ctx.target).norm(dim=-1)
+
+    def update_stats(self, ctx: "SkillContext", active: torch.Tensor, stats: dict[str, torch.Tensor]) -> None:
+        """Accumulate this step into `stats` [N, S] at each env's current subtask (active [N]:
+        the env is on this skill)."""
+
+    def score(self, done: torch.Tensor, stats: dict[str, torch.Tensor]) -> torch.Tensor:
+        """Success score [N, S] for subtasks of this skill from done [N, S] and the stats."""
+        return done.float()
+
+    def terminations(self, ctx: "SkillContext") -> dict[str, torch.Tensor]:
+        """Extra episode-ending conditions [N] bool (evaluated where the env is on this skill)."""
+        return {}
+
+    def oracle(self, ctx: "SkillContext", cmd: "OracleCommand", active: torch.Tensor) -> None:
+        """Write the scripted controller's command for envs on this skill (active [N])."""
+        raise NotImplementedError(f"skill '{self.name}' has no oracle piece")

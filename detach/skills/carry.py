@@ -1,0 +1,163 @@
+"""Carry: pick up a box and put it down at a destination (the paper's "Carry").
+
+Plan entry: `target_object` names the box (a dynamic object), `tarpos_K` its destination.
+Distance: 3-D from the box's bbox centre to the destination. Success (the paper): 1 when
+delivered (the transition fired), 0.5 when the box was only grasped (lifted at least
+`GRASP_LIFT` above its resting height), else 0. Rewards: walk to the box, hold it up, bring
+it to the destination.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from detach.character.body import START_HEIGHT
+from detach.skills.base import PlanError, RewardTerm, Skill, Subtask
+from detach.skills.context import OracleCommand, SkillContext
+from detach.skills.kernels import NEAR, approach
+from detach.skills.registry import register_skill
+from detach.skills.scripting import hinge_index
+from detach.torch_math import quat_rotate, wrap_angle
+
+GRASP_LIFT = 0.1
+"""A box counts as grasped once lifted this far (m) above its resting height."""
+LIFT = 0.2
+"""How far (m) the oracle raises a grasped box."""
+
+
+def walk_to_box(ctx: SkillContext) -> torch.Tensor:
+    r = approach(ctx, ctx.obj_pos)
+    delivered = (ctx.obj_pos[:, :2] - ctx.target[:, :2]).norm(dim=-1) < NEAR
+    return torch.where(delivered, torch.ones_like(r), r)
+
+
+def box_height(ctx: SkillContext) -> torch.Tensor:
+    far = (ctx.obj_pos[:, :2] - ctx.target[:, :2]).norm(dim=-1) > NEAR
+    goal = torch.where(far, ctx.obj_rest_z + 0.3, ctx.target[:, 2])
+    return torch.exp(-10.0 * (ctx.obj_pos[:, 2] - goal) ** 2)
+
+
+def box_to_target(ctx: SkillContext) -> torch.Tensor:
+    d_xy = (ctx.obj_pos[:, :2] - ctx.target[:, :2]).norm(dim=-1)
+    d3 = (ctx.obj_pos - ctx.target).norm(dim=-1)
+    return 0.5 * torch.exp(-0.5 * d_xy * d_xy) + 0.5 * torch.exp(-5.0 * d3 * d3)
+
+
+def reach_pose(top_z: torch.Tensor, pelvis_z: float = START_HEIGHT) -> tuple[torch.Tensor, torch.Tensor]:
+    """Hinge targets [n, 32] that put both hands 2 cm above a lid at height top_z [n] (m), and
+    the hands' forward reach (m) from the pelvis at height pelvis_z.
+
+    The torso pitches forward by phi (abdomen_y; more for low lids) and the straight arms
+    (0.53 m from shoulder to hand) hang at beta from the vertical, solved from the shoulder's
+    height; the shoulder hinge is -(beta + phi) because it rotates with the torso.
+    """
+    phi = torch.where(top_z < 0.85, torch.full_like(top_z, 0.9), torch.full_like(top_z, 0.4))
+    sx = -0.01 * torch.cos(phi) + 0.25 * torch.sin(phi)
+    sz = pelvis_z + 0.12 + 0.01 * torch.sin(phi) + 0.25 * torch.cos(phi)
+    arm = 0.53
+    cosb = ((sz - (top_z + 0.02)) / arm).clamp(-1.0, 1.0)
+    beta = torch.acos(cosb).clamp(0.0, 1.5)
+    q = torch.zeros(len(top_z), 32)
+    q[:, hinge_index("abdomen_y")] = phi
+    q[:, hinge_index("right_shoulder_y")] = -beta - phi
+    q[:, hinge_index("left_shoulder_y")] = -beta - phi
+    return q, sx + arm * torch.sin(beta)
+
+
+@register_skill
+class Carry(Skill):
+    name = "carry"
+    display_name = "Carry"
+    color = (255, 127, 14)
+    motion_labels = ("carry", "walk")
+    sources = ("tarpos",)
+    needs_object = True
+    stats = {"grasped": torch.bool}
+    reward_terms = {"walk_to_box": RewardTerm(walk_to_box, 0.2), "box_height": RewardTerm(box_height, 0.2),
+                    "box_to_target": RewardTerm(box_to_target, 0.6)}
+
+    def compile_entry(self, index, source, ref, obj, task) -> Subtask:
+        if source == "scene":
+            raise PlanError(("sample_target_from", index), "scene_K names the box itself, which gives no "
+                            "destination; use tarpos_K")
+        sub = super().compile_entry(index, source, ref, obj, task)
+        if task.scene[obj].static:
+            raise PlanError(("target_object", index), f"'carry' needs a dynamic object, but scene[{obj}] "
+                            f"({task.scene[obj].name}) is static")
+        return sub
+
+    def bind(self, plan, services) -> None:
+        super().bind(plan, services)
+        objects = services.scene.objects
+        self.dyn_slot = torch.full((max(len(objects), 1),), -1, dtype=torch.long, device=self.device)
+        for k, i in enumerate(services.scene.dynamic):
+            self.dyn_slot[i] = k
+
+    def distance(self, ctx: SkillContext) -> torch.Tensor:
+        return (ctx.obj_pos - ctx.target).norm(dim=-1)
+
+    def update_stats(self, ctx, active, stats) -> None:
+        ar = torch.arange(ctx.num_envs, device=self.device)
+        lifted = ctx.obj_pos[:, 2] >= ctx.obj_rest_z + GRASP_LIFT
+        stats["grasped"][ar, ctx.subtask] |= active & lifted
+
+    def score(self, done, stats) -> torch.Tensor:
+        grasped = stats["grasped"]
+        return torch.where(done, torch.ones_like(grasped, dtype=torch.float32), 0.5 * grasped.float())
+
+    def oracle(self, ctx: SkillContext, cmd: OracleCommand, active: torch.Tensor) -> None:
+        """Walk to the box face opposite its destination (via a point in front of that face),
+        bend over until both hands rest on the lid, grasp, lift `LIFT`, translate (without
+        turning) until the box is 0.1 m short of the destination, lower it, and hold."""
+        n, dev = ctx.num_envs, self.device
+        box, bq, half, target = ctx.obj_pos, ctx.obj_quat, ctx.obj_half, ctx.target
+        pxy, yaw = ctx.state.root_pos[:, :2], cmd.yaw
+        slot = self.dyn_slot[ctx.obj.clamp(min=0)]
+        held = (ctx.held == slot) & (slot >= 0)
+        # the box face whose outward normal points away from the destination
+        away = box[:, :2] - target[:, :2]
+        axes = torch.stack((quat_rotate(bq, torch.tensor([1.0, 0, 0], device=dev).expand(n, 3)),
+                            quat_rotate(bq, torch.tensor([0, 1.0, 0], device=dev).expand(n, 3))), 1)[..., :2]
+        axes = axes / axes.norm(dim=-1, keepdim=True).clamp(min=1e-6)
+        cand = torch.cat((axes, -axes), 1)  # [n, 4, 2]: +x, +y, -x, -y
+        hd = torch.cat((half[:, :2], half[:, :2]), 1)  # half depth along each normal
+        k = (cand * away[:, None]).sum(-1).argmax(-1)
+        ar = torch.arange(n, device=dev)
+        normal, depth = cand[ar, k], hd[ar, k]
+        top = box[:, 2] + half[:, 2]
+        q_reach, reach = reach_pose(top.cpu())
+        q_reach, reach = q_reach.to(dev), reach.to(dev)
+        stand = box[:, :2] + normal * (reach + (depth - 0.15).clamp(min=0.05))[:, None]
+        via = stand + normal * 0.6
+        d_stand = (stand - pxy).norm(dim=-1)
+        goal = torch.where((d_stand > 0.7)[:, None], via, stand)
+        # walk around the box (on a circle) until in front of the chosen face
+        rel = pxy - box[:, :2]
+        th_p, th_n = torch.atan2(rel[:, 1], rel[:, 0]), torch.atan2(normal[:, 1], normal[:, 0])
+        dth = wrap_angle(th_n - th_p)
+        radius = (half[:, :2].norm(dim=-1) + 0.5).clamp(min=rel.norm(dim=-1).clamp(max=3.0))
+        th = th_p + dth.sign() * 0.6
+        orbit = box[:, :2] + radius[:, None] * torch.stack((th.cos(), th.sin()), -1)
+        goal = torch.where((dth.abs() > 0.4)[:, None], orbit, goal)
+        v_app = (2.5 * (goal - pxy)).clamp(-1.5, 1.5)
+        face = torch.atan2(-normal[:, 1], -normal[:, 0])
+        arrived = (d_stand < 0.06) & (wrap_angle(face - yaw).abs() < 0.1)
+        # carrying: translate so that the box ends 0.1 m short of the destination
+        to_dest = target[:, :2] - box[:, :2]
+        dd = to_dest.norm(dim=-1)
+        goal_box = target[:, :2] - to_dest / dd.clamp(min=1e-6)[:, None] * 0.1
+        v_carry = (2.0 * (goal_box - box[:, :2]))
+        v_carry = v_carry * (1.4 / v_carry.norm(dim=-1, keepdim=True).clamp(min=1.4))
+        at_dest = (goal_box - box[:, :2]).norm(dim=-1) < 0.05
+        delivered = ((box - target).norm(dim=-1) <= self.services.cfg.env.success_threshold) & ~held
+        vm = torch.where(held[:, None], v_carry, torch.where(delivered[:, None], torch.zeros_like(v_app), v_app))
+        cmd.velocity = torch.where(active[:, None], vm, cmd.velocity)
+        cmd.yaw_target = torch.where(active & ~held & (d_stand < 1.5), face, cmd.yaw_target)
+        cmd.yaw_target = torch.where(active & ~held & (d_stand >= 1.5), torch.atan2(v_app[:, 1], v_app[:, 0]),
+                                     cmd.yaw_target)
+        z_c = torch.where(held & ~at_dest, cmd.height + LIFT, cmd.height)
+        cmd.height = torch.where(active, z_c, cmd.height)
+        near = active & (d_stand < 0.4)
+        cmd.hinges = torch.where((near | held)[:, None], q_reach, cmd.hinges)
+        cmd.grasp = torch.where(active & ((arrived & ~delivered) | held), torch.ones_like(cmd.grasp), cmd.grasp)
+

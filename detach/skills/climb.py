@@ -1,0 +1,92 @@
+"""Climb: get onto an object and stand on it (the paper's "Climb").
+
+Target: `scene_K` (object K's climb point, `tarClimbPos` of its asset: the top surface above
+the bbox centre, carried into the world by the object's current pose) raised by
+`env.climb_pelvis_height` (a standing pelvis), or a fixed `tarpos_K`. Success (the paper:
+"the pelvis at or above the target elevation"): the distance
+sqrt(dxy^2 + max(0, target_z - pelvis_z)^2) stays within `success_threshold` until the
+transition fires; being higher does not count against it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from detach.character.body import FLOOR_TO_SOLE, START_HEIGHT
+from detach.skills.base import RewardTerm, Skill, Subtask
+from detach.skills.context import OracleCommand, SkillContext
+from detach.skills.kernels import approach
+from detach.skills.registry import register_skill
+from detach.torch_math import quat_rotate
+
+
+def climb_distance(root_pos: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """sqrt(dxy^2 + max(0, target_z - pelvis_z)^2) [N], metres."""
+    dxy = (root_pos[:, :2] - target[:, :2]).norm(dim=-1)
+    below = (target[:, 2] - root_pos[:, 2]).clamp(min=0.0)
+    return torch.sqrt(dxy * dxy + below * below)
+
+
+def climb_approach(ctx: SkillContext) -> torch.Tensor:
+    return approach(ctx, ctx.target)
+
+
+def elevation(ctx: SkillContext) -> torch.Tensor:
+    return torch.exp(-5.0 * ctx.dist ** 2)
+
+
+def object_points(scene, attr: str, device: torch.device) -> torch.Tensor:
+    """[n_obj, 3] an object-frame point of every scene object (e.g. `tar_climb_local`)."""
+    pts = [list(getattr(o, attr)) for o in scene.objects]
+    return torch.tensor(pts, dtype=torch.float32, device=device).reshape(-1, 3)
+
+
+def object_point_world(ctx: SkillContext, local: torch.Tensor) -> torch.Tensor:
+    """[N, 3] the object-frame points `local` [n_obj, 3] of each env's subtask object, in the
+    world by the object's current pose (zeros when the scene has no object)."""
+    if local.shape[0] == 0:
+        return torch.zeros(ctx.num_envs, 3, device=local.device)
+    return ctx.obj_pos + quat_rotate(ctx.obj_quat, local[ctx.obj.clamp(min=0)])
+
+
+@register_skill
+class Climb(Skill):
+    name = "climb"
+    display_name = "Climb"
+    color = (31, 119, 180)
+    motion_labels = ("step_up", "walk")
+    sources = ("scene", "tarpos")
+    needs_object = True
+    reward_terms = {"approach": RewardTerm(climb_approach, 0.3), "elevation": RewardTerm(elevation, 0.7)}
+
+    def bind(self, plan, services) -> None:
+        super().bind(plan, services)
+        self.local = object_points(services.scene, "tar_climb_local", self.device)
+
+    def display_target(self, sub: Subtask, scene) -> np.ndarray | None:
+        if sub.fixed_target is None and sub.obj >= 0:
+            return scene.objects[sub.obj].to_world(scene.objects[sub.obj].tar_climb_local)
+        return super().display_target(sub, scene)
+
+    def target(self, ctx: SkillContext) -> torch.Tensor:
+        climb = object_point_world(ctx, self.local)
+        climb[:, 2] += self.services.cfg.env.climb_pelvis_height
+        return torch.where(ctx.has_fixed[:, None], ctx.fixed_target, climb)
+
+    def distance(self, ctx: SkillContext) -> torch.Tensor:
+        return climb_distance(ctx.state.root_pos, ctx.target)
+
+    def oracle(self, ctx: SkillContext, cmd: OracleCommand, active: torch.Tensor) -> None:
+        """Rise until the feet clear the top, move over the climb point, stand on it."""
+        p, target = ctx.state.root_pos, ctx.target
+        pxy = p[:, :2]
+        surf = target[:, 2] - self.services.cfg.env.climb_pelvis_height
+        lift = surf + START_HEIGHT + 0.1
+        dxy = (target[:, :2] - pxy).norm(dim=-1)
+        up = p[:, 2] > lift - 0.05
+        vc = (2.5 * (target[:, :2] - pxy)).clamp(-1.2, 1.2)
+        vc = torch.where((up | (dxy < 0.05))[:, None], vc, torch.zeros_like(vc))
+        cmd.velocity = torch.where(active[:, None], vc, cmd.velocity)
+        zc = torch.where(dxy < 0.05, surf + FLOOR_TO_SOLE + 0.01, lift)
+        cmd.height = torch.where(active, torch.maximum(zc, cmd.height), cmd.height)

@@ -1,0 +1,71 @@
+"""A task's plan, resolved against the skill registry into `Subtask`s (TokenHSI terms).
+
+`sample_target_from[i]` says where subtask i's target comes from: `traj_K` (trajectory K;
+`traj_rand` a procedural one per episode), `tarpos_K` (the fixed world position
+`target_positions[K]`) or `scene_K` (object K). `target_object[i]` names the subtask's object
+where its skill needs one (the box for carry). The config loader checks that every source
+exists; each skill checks the entries it is given (`Skill.compile_entry`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from detach.config_schema import TaskCfg
+from detach.skills.base import RAND, PlanError, Subtask
+from detach.skills.registry import canonical_name, skill_class, skill_index
+
+
+def parse_source(src: str) -> tuple[str, int]:
+    """'traj_3' -> ('traj', 3); 'traj_rand' -> ('traj', RAND)."""
+    kind, _, k = src.partition("_")
+    return kind, RAND if k == "rand" else int(k)
+
+
+def compile_plan(task: TaskCfg) -> tuple[Subtask, ...]:
+    """Every plan entry through its skill; raises `PlanError` (with the task key) when one
+    cannot run."""
+    if not task.plan:
+        raise PlanError(("plan",), "expected at least one skill, found an empty plan")
+    out = []
+    for i, (name, src, obj) in enumerate(zip(task.plan, task.sample_target_from, task.target_object)):
+        try:
+            skill = skill_class(name)()
+        except ValueError as exc:
+            raise PlanError(("plan", i), str(exc)) from None
+        kind, ref = parse_source(src)
+        out.append(skill.compile_entry(i, kind, ref, obj, task))
+    return tuple(out)
+
+
+def plan_error_text(task: TaskCfg, err: PlanError) -> str:
+    """One line naming the task and the key of a plan error (for callers without a file)."""
+    key = "".join(f"[{k}]" if isinstance(k, int) else (f".{k}" if j else k) for j, k in enumerate(err.key))
+    return f"task '{task.name}': {key}: {err}"
+
+
+@dataclass
+class PlanTensors:
+    """The plan as tensors [S, ...] for batched lookups by each env's current subtask."""
+
+    skill: torch.Tensor
+    """Registry index of each subtask's skill."""
+    obj: torch.Tensor
+    has_fixed: torch.Tensor
+    fixed_target: torch.Tensor
+
+    @classmethod
+    def build(cls, plan: tuple[Subtask, ...], device: torch.device | str) -> "PlanTensors":
+        fixed = np.array([s.fixed_target if s.fixed_target is not None else (0.0, 0.0, 0.0) for s in plan])
+        return cls(
+            skill=torch.tensor([skill_index(s.skill) for s in plan], device=device),
+            obj=torch.tensor([s.obj for s in plan], device=device),
+            has_fixed=torch.tensor([s.fixed_target is not None for s in plan], device=device),
+            fixed_target=torch.as_tensor(fixed, dtype=torch.float32, device=device),
+        )
+
+
+__all__ = ["PlanTensors", "compile_plan", "canonical_name", "parse_source", "plan_error_text"]

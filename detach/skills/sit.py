@@ -1,0 +1,107 @@
+"""Sit: sit on an object's seat (the paper's "Sit").
+
+Target: `scene_K` (object K's sit point, `tarSitPos` of its asset: 0.1 m above the seat,
+carried into the world by the object's current pose) or a fixed `tarpos_K`. Distance: 3-D
+from the pelvis to the target. Success (the paper: "the pelvis on the upper surface of the
+target object"): the transition fired.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from detach.skills.base import RewardTerm, Skill, Subtask
+from detach.skills.climb import object_point_world, object_points
+from detach.skills.context import OracleCommand, SkillContext
+from detach.skills.kernels import approach
+from detach.skills.registry import register_skill
+from detach.skills.scripting import hinge_pose
+
+SIT_POSE = hinge_pose(right_hip_y=-1.57, left_hip_y=-1.57, right_shoulder_y=-1.2, left_shoulder_y=-1.2)
+"""The oracle's long sitting: thighs and shins straight forward, arms reaching forward."""
+
+
+def sit_approach(ctx: SkillContext) -> torch.Tensor:
+    return approach(ctx, ctx.target)
+
+
+def seat(ctx: SkillContext) -> torch.Tensor:
+    return torch.exp(-10.0 * ctx.dist ** 2)
+
+
+@register_skill
+class Sit(Skill):
+    name = "sit"
+    display_name = "Sit"
+    color = (148, 103, 189)
+    motion_labels = ("sit", "walk")
+    sources = ("scene", "tarpos")
+    needs_object = True
+    reward_terms = {"approach": RewardTerm(sit_approach, 0.3), "seat": RewardTerm(seat, 0.7)}
+
+    def bind(self, plan, services) -> None:
+        super().bind(plan, services)
+        self.local = object_points(services.scene, "tar_sit_local", self.device)
+        self._headings: torch.Tensor | None = None
+
+    def display_target(self, sub: Subtask, scene) -> np.ndarray | None:
+        if sub.fixed_target is None and sub.obj >= 0:
+            return scene.objects[sub.obj].to_world(scene.objects[sub.obj].tar_sit_local)
+        return super().display_target(sub, scene)
+
+    def target(self, ctx: SkillContext) -> torch.Tensor:
+        return torch.where(ctx.has_fixed[:, None], ctx.fixed_target, object_point_world(ctx, self.local))
+
+    # ------------------------------------------------------------------ oracle
+    def _sit_heading(self, obj: int) -> float:
+        """Yaw (rad) to sit on object obj facing a direction whose leg line is free."""
+        raster, dev = self.services.raster, self.device
+        o = self.services.scene.objects[obj]
+        seat_pt = torch.as_tensor(o.tar_sit_world, dtype=torch.float32, device=dev)
+        base = o.z_rot + math.pi / 2  # the object faces its local +Y
+        best, best_h = base, float("inf")
+        for k in (0, 1, 3, 2):
+            yaw = base + k * math.pi / 2
+            t = torch.linspace(0.25, 1.0, 16, device=dev)
+            pts = seat_pt[:2] + t[:, None] * torch.tensor([math.cos(yaw), math.sin(yaw)], device=dev)
+            h = float(raster.sample(pts).max())
+            if h <= seat_pt[2] - 0.1 + 0.03:
+                return yaw
+            if h < best_h:
+                best, best_h = yaw, h
+        return best
+
+    def _clearance(self, frm: torch.Tensor, to: torch.Tensor) -> torch.Tensor:
+        """Highest static surface (m) along segments frm -> to [n, 2] and within 1 m of `to`."""
+        dev = self.device
+        t = torch.linspace(0.0, 1.0, 24, device=dev)
+        line = frm[:, None] + t[None, :, None] * (to - frm)[:, None]
+        ang = torch.linspace(0, 2 * math.pi, 13, device=dev)[:-1]
+        ring = torch.cat([to[:, None] + r * torch.stack((ang.cos(), ang.sin()), -1)[None] for r in (0.4, 0.8, 1.05)], 1)
+        return self.services.raster.sample(torch.cat((line, ring), 1)).max(dim=-1).values
+
+    def oracle(self, ctx: SkillContext, cmd: OracleCommand, active: torch.Tensor) -> None:
+        """Take a long-sitting pose facing the first of the object's facing direction and its
+        90/180 deg turns whose leg line is free, rise above everything around the seat, move
+        over the sit point and lower onto the seat."""
+        if self._headings is None:
+            self._headings = torch.tensor([self._sit_heading(s.obj) if s.skill == self.name and s.obj >= 0
+                                           else 0.0 for s in self.plan], device=self.device)
+        p, target = ctx.state.root_pos, ctx.target
+        pxy = p[:, :2]
+        dxy = (target[:, :2] - pxy).norm(dim=-1)
+        far = dxy > 2.0
+        clear = self._clearance(pxy, target[:, :2]) + 0.2
+        up = p[:, 2] > clear - 0.05
+        vs = (2.5 * (target[:, :2] - pxy)).clamp(-1.2, 1.2)
+        vs = torch.where((far | up | (dxy < 0.04))[:, None], vs, torch.zeros_like(vs))
+        cmd.velocity = torch.where(active[:, None], vs, cmd.velocity)
+        heading = self._headings[ctx.subtask]
+        cmd.yaw_target = torch.where(active & far, torch.atan2(vs[:, 1], vs[:, 0]),
+                                     torch.where(active, heading, cmd.yaw_target))
+        zs = torch.where(dxy < 0.04, target[:, 2] - 0.1, torch.maximum(clear, cmd.height))
+        cmd.height = torch.where(active & ~far, zs, cmd.height)
+        cmd.hinges = torch.where((active & ~far)[:, None], SIT_POSE.to(self.device), cmd.hinges)

@@ -1,0 +1,48 @@
+"""The checks of a run configuration that need the plug-in registries, before anything runs.
+
+`detach.config` checks the structure of a configuration; the names it cannot know (character,
+physics backend, the plan's skills, reward terms, the model's network) are checked here
+against the registries of their packages, with the file and line the value came from, and
+the character's initial action std is filled in so that config.yaml records the number.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from detach.character import character_class
+from detach.config_schema import RunConfig
+from detach.envs.rewards import RewardManager
+from detach.models.factory import model_class
+from detach.sim import check_backend
+from detach.skills import PlanError
+from detach.skills.plan import compile_plan
+
+
+def complete_run_config(cfg: RunConfig) -> RunConfig:
+    """`cfg` checked against the registries (ConfigError naming file, line and key) and with
+    `model.init_noise_std` resolved from the character when it is null."""
+    origin = cfg.origin
+    try:
+        character = character_class(cfg.env.character)
+    except ValueError as exc:
+        raise origin.error(("env", "character"), str(exc)) from None
+    try:
+        check_backend(cfg.sim.backend)
+    except ValueError as exc:
+        raise origin.error(("sim", "backend"), str(exc)) from None
+    try:
+        compile_plan(cfg.task)
+    except PlanError as exc:
+        raise origin.error(exc.key, str(exc)) from None
+    try:
+        RewardManager(cfg.rewards)
+    except ValueError as exc:
+        raise origin.error(("rewards", "terms"), str(exc).removeprefix("rewards.terms: ")) from None
+    try:
+        model_class(cfg.model)
+    except ValueError as exc:
+        raise origin.error(("model", "kind"), str(exc)) from None
+    if cfg.model.init_noise_std is None:
+        cfg = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, init_noise_std=character.action_std))
+    return cfg

@@ -1,0 +1,121 @@
+"""Everything a training run is made of: config -> env -> models -> PPO+AMP runner.
+
+`build_runner` builds the task's missing assets (a progress line, before any environment
+exists), makes the environment, the motion library's samplers, rsl-rl's runner with our `AmpPPO`, and
+DETACH's stage hooks and auxiliary losses. The run folder around it is `detach.runs.session`.
+"""
+
+from __future__ import annotations
+
+import random
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from detach.character import character_class
+from detach.config_schema import RunConfig, TaskCfg
+from detach.envs.lh_env import LHEnv, make_env
+from detach.models.factory import DEFAULT_OBS_GROUPS, rsl_rl_model_cfgs
+from detach.models.losses import combine_aux_losses
+from detach.motion import default_motion_lib
+from detach.train.motion_bridge import amp_part_indices, amp_reference_sampler, reset_reference_sampler
+from detach.train.runner import DetachRunner, MetricsSink
+from detach.train.schedule import stage_lengths
+from scene_builder.assets import ensure_assets
+
+
+def prepare_assets(task: TaskCfg) -> None:
+    """Build the task's missing assets now (a progress line if there is anything to build)."""
+    ensure_assets(task, log=lambda line: print(line, flush=True))
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def default_action_std(cfg: RunConfig) -> float:
+    """The initial action std of the run's character (`model.init_noise_std: null`)."""
+    return character_class(cfg.env.character).action_std
+
+
+def train_cfg_dict(cfg: RunConfig, env: LHEnv) -> dict:
+    """rsl-rl-lib's train_cfg for this run (algorithm = our AmpPPO, typed configs inside)."""
+    t, amp = cfg.train, cfg.train.amp
+    actor, critic = rsl_rl_model_cfgs(cfg.model, env.obs_spec, default_action_std(cfg))
+    parts = amp_part_indices(amp.body_parts, cfg.env.amp_obs_steps) if amp.body_parts else None
+    return {
+        "num_steps_per_env": t.num_steps_per_env, "save_interval": t.save_interval,
+        "obs_groups": {k: list(v) for k, v in DEFAULT_OBS_GROUPS.items()},
+        "algorithm": {"class_name": "detach.train.amp_ppo:AmpPPO",
+                      "num_learning_epochs": t.num_learning_epochs,
+                      "num_mini_batches": t.num_mini_batches, "clip_param": t.clip_param,
+                      "gamma": t.gamma, "lam": t.lam, "value_loss_coef": t.value_loss_coef,
+                      "entropy_coef": t.entropy_coef, "learning_rate": t.learning_rate,
+                      "max_grad_norm": t.max_grad_norm, "schedule": t.schedule,
+                      "desired_kl": t.desired_kl, "amp": amp,
+                      "task_specific": cfg.env.task_specific_discrimination, "amp_parts": parts,
+                      "per_objective_advantage_norm": t.per_objective_advantage_norm},
+        "actor": actor, "critic": critic,
+    }
+
+
+def _stage_hook(runner: DetachRunner):
+    """DETACH's protocol on each DETACH trunk (the actor's, and the critic's unless it shares
+    the actor's): snapshot + freeze entering stage 2, unfreeze in 3."""
+    models = [m for m in (runner.alg.actor, runner.alg.critic)
+              if hasattr(m, "freeze_encoders") and m.owns_trunk]
+
+    def on_stage(stage: str) -> None:
+        print(f"stage: {stage}", flush=True)
+        for m in models:
+            if stage == "fusion":
+                m.snapshot_encoders()
+                m.freeze_encoders()
+            elif stage in ("pretrain", "joint"):
+                m.unfreeze_encoders()
+
+    return on_stage, models
+
+
+def build_runner(cfg: RunConfig, checkpoint_dir: Path | None, device: str, log: MetricsSink | None = None,
+                 progress: bool = True) -> tuple[LHEnv, DetachRunner]:
+    if cfg.train.torch_threads > 0:
+        torch.set_num_threads(cfg.train.torch_threads)
+    seed_everything(cfg.seed)
+    prepare_assets(cfg.task)
+    env = make_env(cfg, device=device)
+    print(env.describe(), flush=True)
+    lib = default_motion_lib(device="cpu")
+    env.set_reference_sampler(reset_reference_sampler(lib))
+    stages = stage_lengths(cfg.train.stages, cfg.train.max_iterations) \
+        if cfg.model.staged else [("ppo", cfg.train.max_iterations)]
+    runner = DetachRunner(env, train_cfg_dict(cfg, env), device=device, schedule=stages,
+                          checkpoint_dir=checkpoint_dir, log=log, progress=progress)
+    alg = runner.alg
+    if alg.amp_enabled:
+        alg.reference_sampler = amp_reference_sampler(
+            lib, cfg.env.amp_obs_steps, env.dt, cfg.env.task_specific_discrimination, device)
+    on_stage, detach_models = _stage_hook(runner)
+    runner.on_stage = on_stage
+    if detach_models:
+        def aux_loss(obs, stage: str):
+            """Weighted loss of the stage on each DETACH trunk; every term logged per stage."""
+            parts = {}
+            total = torch.zeros((), device=device)
+            if stage == "pretrain":  # no PPO update normalises the inputs in this stage
+                alg.actor.update_normalization(obs)
+                alg.critic.update_normalization(obs)
+            for name, model in zip(("actor", "critic"), detach_models):
+                terms = model.aux_losses(obs)
+                loss = combine_aux_losses(terms, stage, model.cfg.regularizers)
+                total = total + loss
+                parts[f"aux/{stage}/{name}/total"] = float(loss.detach())
+                parts.update({f"aux/{stage}/{name}/{k}": float(v.detach())
+                              for k, v in terms.items()})
+            return total, parts
+
+        alg.aux_loss_fn = aux_loss
+    return env, runner

@@ -1,0 +1,172 @@
+"""The layer order of docs/ARCHITECTURE.md, enforced on every import in the code.
+
+Data flows one way: config -> assets -> character -> scene/sim/motion -> skills -> envs ->
+models -> train -> eval -> runs -> cli/server. A module may import its own layer or a lower
+one, never a higher one, and no set of modules may import each other in a cycle. Every import
+counts, also those inside functions and under TYPE_CHECKING. `from a.b import c` depends on
+module a.b (the package a.b's __init__ when a.b is a package).
+"""
+
+from __future__ import annotations
+
+import ast
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("detach", "scene_builder", "server")
+
+LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("config", ("detach", "detach.yaml_source", "detach.config_validate", "detach.config_schema",
+                "detach.config", "detach.torch_math", "detach.run_contract")),
+    ("assets", ("scene_builder",)),
+    ("character", ("detach.character",)),
+    ("scene", ("scene_builder.scene", "detach.sim", "detach.motion")),
+    ("skills", ("detach.skills",)),
+    ("envs", ("detach.envs",)),
+    ("models", ("detach.models",)),
+    ("train", ("detach.train",)),
+    ("eval", ("detach.eval",)),
+    ("runs", ("detach.runs",)),
+    ("cli", ("detach.cli", "scene_builder.cli", "detach.motion.cli", "server")),
+)
+"""Layer name and the module prefixes in it; the longest matching prefix decides."""
+
+
+def modules() -> dict[str, Path]:
+    out = {}
+    for pkg in PACKAGES:
+        for path in (ROOT / pkg).rglob("*.py"):
+            parts = path.relative_to(ROOT).with_suffix("").parts
+            name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+            out[name] = path
+    return out
+
+
+def layer_of(module: str) -> int:
+    best, best_len = None, -1
+    for i, (_name, prefixes) in enumerate(LAYERS):
+        for p in prefixes:
+            if (module == p or module.startswith(p + ".")) and len(p) > best_len:
+                best, best_len = i, len(p)
+    assert best is not None, f"{module} is in no layer: add it to LAYERS and docs/ARCHITECTURE.md"
+    return best
+
+
+def imports(name: str, path: Path, known: dict[str, Path]) -> set[str]:
+    """Project modules imported by one module (resolved to the deepest known module)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    is_pkg = path.name == "__init__.py"
+    found = set()
+    for node in ast.walk(tree):
+        targets: list[str] = []
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = name.split(".") if is_pkg else name.split(".")[:-1]
+                anchor = anchor[:len(anchor) - (node.level - 1)]
+                base = ".".join([*anchor, base] if base else anchor)
+            targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in known else base for a in node.names]
+        for t in targets:
+            while t and t not in known:
+                t = t.rpartition(".")[0]
+            if t and t != name:
+                found.add(t)
+    return found
+
+
+def graph() -> dict[str, set[str]]:
+    known = modules()
+    return {name: imports(name, path, known) for name, path in known.items()}
+
+
+def test_no_import_runs_against_the_layer_order() -> None:
+    upward = []
+    for module, deps in sorted(graph().items()):
+        for dep in sorted(deps):
+            if layer_of(dep) > layer_of(module):
+                upward.append(f"{module} ({LAYERS[layer_of(module)][0]}) imports {dep} "
+                              f"({LAYERS[layer_of(dep)][0]})")
+    assert not upward, "imports against the layer order:\n" + "\n".join(upward)
+
+
+def test_no_import_cycle() -> None:
+    g = graph()
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    cycles: list[list[str]] = []
+
+    def visit(v: str) -> None:  # Tarjan's strongly connected components
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in g[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                cycles.append(sorted(comp))
+
+    for v in sorted(g):
+        if v not in index:
+            visit(v)
+    assert not cycles, f"import cycles: {cycles}"
+
+
+def test_no_package_level_cycle() -> None:
+    """Between packages too (e.g. runs <-> train): collapse modules to their package."""
+    def pkg(m: str) -> str:
+        return ".".join(m.split(".")[:2])
+
+    edges: dict[str, set[str]] = {}
+    for module, deps in graph().items():
+        edges.setdefault(pkg(module), set()).update(pkg(d) for d in deps if pkg(d) != pkg(module))
+    for a, targets in edges.items():
+        for b in targets:
+            assert a not in _reachable(edges, b), f"package cycle through {a} and {b}"
+
+
+def _reachable(edges: dict[str, set[str]], start: str) -> set[str]:
+    seen, todo = set(), [start]
+    while todo:
+        v = todo.pop()
+        for w in edges.get(v, ()):
+            if w not in seen:
+                seen.add(w)
+                todo.append(w)
+    return seen
+
+
+def test_no_character_name_outside_the_character_package() -> None:
+    """Characters are plug-ins: no code outside detach/character branches on a name."""
+    found = []
+    for name, path in modules().items():
+        if name.startswith("detach.character"):
+            continue
+        for i, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+            if re.search(r"""["']puppet["']""", line):
+                found.append(f"{path.relative_to(ROOT)}:{i}: {line.strip()}")
+    assert not found, "\n".join(found)
+
+
+def test_code_cites_only_documents_of_the_repository() -> None:
+    cited = set()
+    for path in modules().values():
+        cited |= set(re.findall(r"(?:docs/)?[A-Z]+\.md", path.read_text(encoding="utf-8")))
+    missing = [c for c in cited if not (ROOT / c).exists() and not (ROOT / "docs" / c).exists()
+               and not (ROOT / "benchmarks" / c).exists()]
+    assert not missing, f"cited but not in the repository: {missing}"
