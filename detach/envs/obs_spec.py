@@ -11,6 +11,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 OBS_GROUPS: tuple[str, ...] = ("self", "env", "task", "critic", "amp")
+OBJECT_WIDTH = 3 + 6 + 24
+"""Object features of an env frame: position, rotation (6-D) and bounding-box corners."""
 
 
 @dataclass(frozen=True)
@@ -46,6 +48,15 @@ class ObsSpec:
 
     def to_dict(self) -> dict[str, int]:
         return asdict(self)
+
+    def env_fields(self) -> dict[str, slice]:
+        """Named parts of one env frame (`detach.envs.observations`): the current target (3),
+        the path ahead (2 per sample), the subtask's object (position 3, rotation 6, corners 24)
+        and the local height map (last `height_map_cells`)."""
+        path = self.env_dim - OBJECT_WIDTH - 3 - self.height_map_cells
+        obj = 3 + path
+        return {"target": slice(0, 3), "path": slice(3, obj), "object": slice(obj, obj + OBJECT_WIDTH),
+                "height_map": slice(self.env_dim - self.height_map_cells, self.env_dim)}
 
     def describe(self) -> str:
         """A table of the groups and their shapes (for start-up logs)."""

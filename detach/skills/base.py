@@ -88,6 +88,9 @@ class Skill:
     stats: ClassVar[dict[str, torch.dtype]] = {}
     """Per-subtask statistics [N, S] it accumulates, by name and dtype (zeroed at reset)."""
     termination_names: ClassVar[tuple[str, ...]] = ()
+    task_observation: ClassVar[tuple[str, ...]] = ("target", "object", "height_map")
+    """The parts of an env frame (`ObsSpec.env_fields`) this skill's task observation is made
+    of: what a model with one task tokenizer per skill (TokenHSI) feeds its tokenizer."""
     reward_terms: ClassVar[dict[str, RewardTerm]] = {}
 
     # ------------------------------------------------------------------ plan

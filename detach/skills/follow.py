@@ -63,6 +63,7 @@ class Follow(Skill):
     motion_labels = ("walk", "turn", "idle")
     sources = ("traj",)
     follows_path = True
+    task_observation = ("target", "path", "height_map")
     stats = {"on_path": torch.long, "path_steps": torch.long}
     termination_names = ("traj_failed",)
     reward_terms = {"position": RewardTerm(position, 0.4), "precision": RewardTerm(precision, 0.3),
