@@ -1,149 +1,120 @@
-"""Retarget a BVH motion to our humanoid through a joint-name map (YAML, see maps/cmu.yaml).
-
-Map keys: `scale` (metres per BVH unit), `axes` (which BVH axis becomes our +X forward, +Y
-left, +Z up; "-" flips; must be a rotation), `root` (BVH joint -> our pelvis), `joints`
-(our joint group -> BVH joint name, or {bvh: NAME, aim: NAME}).
+"""Retarget a source motion (BVH, or ASF/AMC read into the same form) to our humanoid through
+a joint map (`detach.motion.joint_map`; format in docs/MOCAP.md, "Joint maps").
 
 Method, per frame (all rotations expressed in our axes via C, i.e. R' = C R C^T):
-1. world rotation G_j of every BVH joint (product of local rotations; the BVH rest pose is
+1. world rotation G_j of every source joint (product of local rotations; the rest pose is
    all-identity);
-2. world rotation of each of our bodies: R_body = G_bvh * Q, where Q is the rest-pose
+2. world rotation of each of our bodies: R_body = G_src * Q, where Q is the rest-pose
    correction: identity, or with `aim` the smallest rotation taking our rest bone direction
-   (body -> its child body) onto the BVH rest bone direction (bvh joint -> aim joint). So a
+   (body -> its child body) onto the source rest bone direction (src joint -> aim joint). So a
    T-pose arm maps onto our hanging arm; bodies of unmapped joints follow their parent;
 3. our joint's local rotation L = R_parent^-1 R_body, turned into hinge angles: for joints
    whose hinges are x, y, z in this order (MuJoCo nests them as Rx Ry Rz), Euler xyz; for
    hinge-like joints (elbows, and knees whose x/z ranges are tiny) the twist about y;
-4. angles are clipped to dof_ranges() (the fraction clipped is reported);
-root position = C * hips position * scale; the source rate 1 / Frame Time is snapped to a whole
-number when within 0.01% (files store 0.0333333 s); the clip is resampled to `fps` if given, body
-positions come from MuJoCo FK, then the whole clip is shifted so that its first root position
-is above the origin and the lowest foot point over the clip touches z = 0.
+4. angles are made continuous over time (`detach.motion.angle_continuity`: each frame takes the
+   2 pi-equivalent / Euler solution nearest the previous frame, the first frame the one nearest
+   the joint range), then clipped to dof_ranges(); clipping is reported per hinge in
+   `meta["clipping"]` and as the overall fraction;
+root position = C * root position * scale; `scale: auto` matches the source's rest hip-to-ankle
+length to ours, `axes: auto` reads up (root -> neck joint) and left (right hip -> left hip) off
+the rest pose. The source rate 1 / frame time is snapped to a whole number when within 0.01%
+(files store 0.0333333 s); the clip is resampled to `fps` if given, body positions come from
+MuJoCo FK, then the whole clip is shifted so that its first root position is above the origin
+and the lowest foot point over the clip touches z = 0.
 """
 
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import yaml
 
-from detach.character.body import BODY_NAMES, JOINT_GROUPS, dof_ranges
+from detach.character.body import BODY_NAMES, DOF_NAMES, JOINT_GROUPS, dof_ranges
+from detach.motion.angle_continuity import clip_to_ranges, continuous_euler_xyz, continuous_track
 from detach.motion.bvh_import import BvhData, read_bvh
 from detach.motion.clip import MotionClip, clip_from_arrays
+from detach.motion.joint_map import (MAPS_DIR, BoundMap, JointMap, RetargetError, available_maps, bind,
+                                     child_bodies, choose_map, load_map)
 from detach.motion.kinematics import humanoid_fk
-from detach.motion.rotations import (euler_xyz_from_matrix, min_rotation, quat_conj, quat_continuous,
-                                     quat_mul, quat_to_matrix, slerp, twist_angle)
+from detach.motion.rotations import min_rotation, quat_conj, quat_continuous, quat_mul, quat_to_matrix, slerp, twist_angle
 
-MAPS_DIR = Path(__file__).parent / "maps"
-_GROUPS = {g.name: g for g in JOINT_GROUPS}
+__all__ = ["MAPS_DIR", "RetargetError", "available_maps", "import_bvh", "load_map", "retarget", "source_axes",
+           "source_scale"]
+
 _HINGE_LIKE_RANGE = 0.2  # rad: a 3-DoF joint whose other two hinges span less than this is a hinge
+_LEG = ("left_hip", "left_knee", "left_ankle")
+"""Our joints whose source joints give the hip-to-ankle length (`scale: auto`)."""
 
 
-class RetargetError(ValueError):
-    """Bad map or a map that does not fit the BVH; one line naming the file."""
+def _bound(bvh: BvhData, jmap: JointMap | None) -> BoundMap:
+    return choose_map(bvh.names, bvh.path) if jmap is None else bind(jmap, bvh.names, bvh.path)
 
 
-@dataclass
-class JointMap:
-    name: str
-    path: str
-    scale: float
-    axes: np.ndarray
-    """[3, 3] C with our_vector = C @ bvh_vector."""
-    root: str
-    joints: dict[str, tuple[str, str | None]]
-    """our joint group -> (BVH joint, aim BVH joint or None)."""
+def source_axes(bvh: BvhData, bound: BoundMap) -> np.ndarray:
+    """C (our_vector = C @ source_vector): the map's axes, or read off the rest pose when the
+    map says `auto`: up = root -> the neck's source joint, left = right hip -> left hip, both
+    snapped to the nearest signed file axis, forward = left x up."""
+    if bound.map.axes is not None:
+        return bound.map.axes
+    need = {"neck": "up", "left_hip": "left", "right_hip": "left"}
+    absent = [ours for ours in need if ours not in bound.joints]
+    if absent:
+        raise RetargetError(f"{bvh.path}: map '{bound.map.name}' has axes: auto but no {', '.join(absent)} joint "
+                            "to read the rest pose from; give axes explicitly")
+    rest = bvh.rest_positions()
+    up = rest[bvh.index(bound.joints["neck"][0])] - rest[bvh.index(bound.root)]
+    left = rest[bvh.index(bound.joints["left_hip"][0])] - rest[bvh.index(bound.joints["right_hip"][0])]
+    up_axis, left_axis = _snap(up), _snap(left)
+    if up_axis is None or left_axis is None or abs(float(up_axis @ left_axis)) > 0.5:
+        raise RetargetError(f"{bvh.path}: cannot read the axes off the rest pose (up {np.round(up, 3).tolist()}, "
+                            f"left {np.round(left, 3).tolist()}); give axes in the map")
+    return np.stack((np.cross(left_axis, up_axis), left_axis, up_axis))
 
 
-def available_maps() -> list[str]:
-    return sorted(p.stem for p in MAPS_DIR.glob("*.yaml"))
+def _snap(v: np.ndarray) -> np.ndarray | None:
+    """The signed unit file axis nearest to v (None for a zero vector)."""
+    n = float(np.linalg.norm(v))
+    if n < 1e-12:
+        return None
+    k = int(np.argmax(np.abs(v)))
+    out = np.zeros(3)
+    out[k] = np.sign(v[k])
+    return out
 
 
-def load_map(name_or_path: str | os.PathLike) -> JointMap:
-    """A shipped map by name (maps/<name>.yaml) or a YAML file path."""
-    p = Path(name_or_path)
-    if not (p.suffix in (".yaml", ".yml") and p.is_file()):
-        p = MAPS_DIR / f"{name_or_path}.yaml"
-        if not p.is_file():
-            raise RetargetError(f"{name_or_path}: unknown joint map; shipped maps: {', '.join(available_maps())} "
-                                "(or give a .yaml path)")
-    try:
-        raw = yaml.safe_load(p.read_text())
-    except yaml.YAMLError as e:
-        raise RetargetError(f"{p}: invalid YAML ({str(e).splitlines()[0]})") from None
-    if not isinstance(raw, dict):
-        raise RetargetError(f"{p}: expected a mapping with keys scale, axes, root, joints")
-    extra = set(raw) - {"scale", "axes", "root", "joints"}
-    if extra:
-        raise RetargetError(f"{p}: unknown key(s) {', '.join(sorted(extra))}; expected scale, axes, root, joints")
-    missing = [k for k in ("scale", "axes", "root", "joints") if k not in raw]
-    if missing:
-        raise RetargetError(f"{p}: missing key(s) {', '.join(missing)}")
-    scale = raw["scale"]
-    if not isinstance(scale, (int, float)) or not scale > 0:
-        raise RetargetError(f"{p}: scale must be a positive number (metres per BVH unit), got {scale!r}")
-    axes = _axes_matrix(raw["axes"], p)
-    if not isinstance(raw["root"], str):
-        raise RetargetError(f"{p}: root must be a BVH joint name, got {raw['root']!r}")
-    if not isinstance(raw["joints"], dict):
-        raise RetargetError(f"{p}: joints must map our joint names to BVH joint names")
-    joints = {}
-    for ours, v in raw["joints"].items():
-        if ours not in _GROUPS:
-            raise RetargetError(f"{p}: joints.{ours}: not a joint of the humanoid; "
-                                f"expected one of {', '.join(_GROUPS)}")
-        if isinstance(v, str):
-            joints[ours] = (v, None)
-        elif isinstance(v, dict) and isinstance(v.get("bvh"), str) and set(v) <= {"bvh", "aim"}:
-            aim = v.get("aim")
-            if aim is not None and not isinstance(aim, str):
-                raise RetargetError(f"{p}: joints.{ours}.aim must be a BVH joint name")
-            if aim is not None and len(_children(_GROUPS[ours].body)) != 1:
-                raise RetargetError(f"{p}: joints.{ours}.aim: {_GROUPS[ours].body} has no single child body to aim at")
-            joints[ours] = (v["bvh"], aim)
-        else:
-            raise RetargetError(f"{p}: joints.{ours}: expected a BVH joint name or {{bvh: NAME, aim: NAME}}")
-    return JointMap(p.stem, str(p), float(scale), axes, raw["root"], joints)
+def source_scale(bvh: BvhData, bound: BoundMap) -> float:
+    """Metres per source unit: the map's, or (`scale: auto`) our rest hip-to-ankle length over
+    the source's (hip -> knee -> ankle joints of the left leg)."""
+    if bound.map.scale is not None:
+        return bound.map.scale
+    absent = [ours for ours in _LEG if ours not in bound.joints]
+    if absent:
+        raise RetargetError(f"{bvh.path}: map '{bound.map.name}' has scale: auto but no {', '.join(absent)} joint "
+                            "to measure the leg; give scale explicitly")
+    rest = bvh.rest_positions()
+    theirs = [rest[bvh.index(bound.joints[j][0])] for j in _LEG]
+    ours_rest = humanoid_fk().rest_body_pos()
+    ours = [ours_rest[BODY_NAMES.index(b)] for b in ("left_thigh", "left_shin", "left_foot")]
+    length = np.linalg.norm(theirs[1] - theirs[0]) + np.linalg.norm(theirs[2] - theirs[1])
+    if not length > 1e-9:
+        raise RetargetError(f"{bvh.path}: scale: auto: the source leg has zero length; give scale explicitly")
+    return float((np.linalg.norm(ours[1] - ours[0]) + np.linalg.norm(ours[2] - ours[1])) / length)
 
 
-def _axes_matrix(axes, p: Path) -> np.ndarray:
-    unit = {"x": 0, "y": 1, "z": 2}
-    if not (isinstance(axes, list) and len(axes) == 3 and all(isinstance(a, str) for a in axes)):
-        raise RetargetError(f"{p}: axes must be three BVH axes for our x, y, z, e.g. [z, x, y]")
-    c = np.zeros((3, 3))
-    for row, a in enumerate(axes):
-        sign = -1.0 if a.startswith("-") else 1.0
-        key = a.lstrip("+-").lower()
-        if key not in unit:
-            raise RetargetError(f"{p}: axes: {a!r} is not one of x, y, z, -x, -y, -z")
-        c[row, unit[key]] = sign
-    if abs(np.linalg.det(c) - 1.0) > 1e-9:
-        raise RetargetError(f"{p}: axes {axes} is not a rotation (a permutation with det +1 is required)")
-    return c
-
-
-def _children(body: str) -> list[str]:
-    m = humanoid_fk().model
-    bid = m.body(body).id
-    return [m.body(i).name for i in range(m.nbody) if m.body_parentid[i] == bid and i != bid]
-
-
-def retarget(bvh: BvhData, jmap: JointMap, skill: str = "walk", name: str | None = None,
+def retarget(bvh: BvhData, jmap: JointMap | None = None, skill: str = "walk", name: str | None = None,
              scale: float | None = None, fps: float | None = None) -> tuple[MotionClip, float]:
-    """(clip, fraction of hinge angles clipped to their ranges) for a parsed BVH."""
+    """(clip, fraction of hinge angles clipped to their ranges) for a parsed source motion.
+
+    `jmap` None picks the shipped map that fits the file's joint names (`choose_map`); `scale`
+    overrides the map's metres per source unit. Per-hinge clipping is in `meta["clipping"]`.
+    """
     where = bvh.path
-    needed = [jmap.root] + [n for b, a in jmap.joints.values() for n in (b, a) if n]
-    for n in needed:
-        if n not in bvh.names:
-            raise RetargetError(f"{where}: joint {n!r} of map {jmap.name!r} is not in the BVH "
-                                f"(BVH joints: {', '.join(bvh.names)})")
-    scale = jmap.scale if scale is None else float(scale)
+    bound = _bound(bvh, jmap)
+    scale = source_scale(bvh, bound) if scale is None else float(scale)
     if not scale > 0:
         raise RetargetError(f"{where}: scale must be > 0, got {scale}")
-    c = jmap.axes
+    c = source_axes(bvh, bound)
     g = bvh.global_quat()  # [F, J, 4] file axes
     g = np.concatenate((g[..., :1], g[..., 1:] @ c.T), axis=-1)  # C R C^T as a quaternion
     rest = bvh.rest_positions() @ c.T
@@ -151,18 +122,18 @@ def retarget(bvh: BvhData, jmap: JointMap, skill: str = "walk", name: str | None
     bidx = {n: i for i, n in enumerate(BODY_NAMES)}
 
     f = bvh.num_frames
-    world = {"pelvis": g[:, bvh.index(jmap.root)]}
+    world = {"pelvis": g[:, bvh.index(bound.root)]}
     body_group = {grp.body: grp for grp in JOINT_GROUPS}
     m = humanoid_fk().model
     angles: dict[str, np.ndarray] = {}
     for body in BODY_NAMES[1:]:  # tree order: a parent's world rotation is known first
         parent = m.body(m.body_parentid[m.body(body).id]).name
         grp = body_group.get(body)
-        if grp is not None and grp.name in jmap.joints:
-            src, aim = jmap.joints[grp.name]
+        if grp is not None and grp.name in bound.joints:
+            src, aim = bound.joints[grp.name]
             q = np.array([1.0, 0.0, 0.0, 0.0])
             if aim:
-                ours = ours_rest[bidx[_children(body)[0]]] - ours_rest[bidx[body]]
+                ours = ours_rest[bidx[child_bodies(body)[0]]] - ours_rest[bidx[body]]
                 theirs = rest[bvh.index(aim)] - rest[bvh.index(src)]
                 q = min_rotation(ours, theirs)
             world[body] = quat_mul(g[:, bvh.index(src)], np.broadcast_to(q, (f, 4)))
@@ -172,9 +143,7 @@ def retarget(bvh: BvhData, jmap: JointMap, skill: str = "walk", name: str | None
             local = quat_mul(quat_conj(world[parent]), world[body])
             angles[grp.name] = _angles(local, grp)
     dof = np.concatenate([angles[grp.name] for grp in JOINT_GROUPS], axis=1)  # DOF_NAMES order
-    rng = dof_ranges()
-    clipped = float(np.mean((dof < rng[:, 0] - 1e-3) | (dof > rng[:, 1] + 1e-3)))
-    dof = np.clip(dof, rng[:, 0], rng[:, 1])
+    dof, report = clip_to_ranges(dof, dof_ranges(), tuple(DOF_NAMES))
     root_quat = quat_continuous(world["pelvis"])
     root_pos = (bvh.root_pos @ c.T) * scale
     src_fps = _snap_fps(1.0 / bvh.frame_time)
@@ -185,25 +154,28 @@ def retarget(bvh: BvhData, jmap: JointMap, skill: str = "walk", name: str | None
     shift = np.array([-root_pos[0, 0], -root_pos[0, 1], -fk.foot_bottom.min()])
     clip = clip_from_arrays(name or Path(bvh.path).stem, skill, out_fps, root_pos + shift, root_quat, dof,
                             fk.body_pos + shift, where=where,
-                            meta={"source": str(bvh.path), "map": jmap.name, "scale": scale,
-                                  "source_fps": src_fps, "clipped_fraction": clipped, "synthetic": False})
-    return clip, clipped
+                            meta={"source": str(bvh.path), "map": bound.map.name, "scale": scale,
+                                  "source_fps": src_fps, "clipped_fraction": report.fraction,
+                                  "clipping": report.as_dict(), "synthetic": False})
+    return clip, report.fraction
 
 
 def _angles(local: np.ndarray, grp) -> np.ndarray:
-    """[F, len(axes)] hinge angles of one joint group from its local rotations [F, 4]."""
+    """[F, len(axes)] continuous (unclipped) hinge angles of one joint group from its local
+    rotations [F, 4]."""
     if len(grp.axes) == 1:
-        return twist_angle(local, "xyz".index(grp.axes))[:, None]
+        (lo, hi), = grp.ranges
+        return continuous_track(twist_angle(local, "xyz".index(grp.axes)), lo, hi)[:, None]
     spans = [hi - lo for lo, hi in grp.ranges]
     narrow = [i for i, s in enumerate(spans) if s < _HINGE_LIKE_RANGE]
     if grp.axes == "xyz" and len(narrow) == 2:
         out = np.zeros((len(local), 3))
         k = ({0, 1, 2} - set(narrow)).pop()
-        out[:, k] = twist_angle(local, k)
+        out[:, k] = continuous_track(twist_angle(local, k), *grp.ranges[k])
         return out
     if grp.axes != "xyz":
         raise RetargetError(f"joint group {grp.name}: unsupported hinge axes {grp.axes!r}")
-    return euler_xyz_from_matrix(quat_to_matrix(local), gimbal_eps=1e-5)
+    return continuous_euler_xyz(quat_to_matrix(local), np.asarray(grp.ranges, dtype=np.float64))
 
 
 def _snap_fps(fps: float) -> float:
@@ -226,8 +198,9 @@ def _resample(root_pos, root_quat, dof, src_fps: float, fps: float):
     return lerp(root_pos), slerp(root_quat[i0], root_quat[i1], w[:, 0]), lerp(dof)
 
 
-def import_bvh(path: str | os.PathLike, map_name: str = "cmu", skill: str = "walk", name: str | None = None,
+def import_bvh(path: str | os.PathLike, map_name: str = "auto", skill: str = "walk", name: str | None = None,
                scale: float | None = None, fps: float | None = None) -> tuple[MotionClip, float]:
-    """Read, retarget and validate a BVH file: (clip, fraction of angles clipped)."""
-    jmap = load_map(map_name)
+    """Read, retarget and validate a BVH file: (clip, fraction of angles clipped).
+    `map_name` "auto" picks the shipped map that fits the file's joint names."""
+    jmap = None if map_name == "auto" else load_map(map_name)
     return retarget(read_bvh(path), jmap, skill=skill, name=name, scale=scale, fps=fps)
