@@ -9,15 +9,36 @@ What the env and the trainer use:
     t = lib.sample_times(ids)
     s = lib.state(ids, t)                             # MotionState, tensors [n, ...]
     w = lib.windows(ids, t, steps=10, dt=1 / 30)      # MotionState, tensors [n, 10, ...]
+
+The names below are imported on first use (PEP 562), so that importing a submodule such as
+`detach.motion.cli` (`detach-motion --help`) does not pay for torch and MuJoCo.
 """
 
-from detach.motion.builtin import builtin_clips, default_motion_lib
-from detach.motion.clip import ClipError, MotionClip, load_clip, load_clips, save_clip
-from detach.motion.library import MotionLib
-from detach.motion.labels import MOTION_LABELS
-from detach.motion.state import MotionState
+from __future__ import annotations
 
-__all__ = [
-    "ClipError", "MOTION_LABELS", "MotionClip", "MotionLib", "MotionState", "builtin_clips",
-    "default_motion_lib", "load_clip", "load_clips", "save_clip",
-]
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from detach.motion.builtin import builtin_clips, default_motion_lib
+    from detach.motion.clip import ClipError, MotionClip, load_clip, load_clips, save_clip
+    from detach.motion.labels import MOTION_LABELS
+    from detach.motion.library import MotionLib
+    from detach.motion.state import MotionState
+
+_HOMES = {
+    "builtin_clips": "builtin", "default_motion_lib": "builtin",
+    "ClipError": "clip", "MotionClip": "clip", "load_clip": "clip", "load_clips": "clip", "save_clip": "clip",
+    "MotionLib": "library", "MOTION_LABELS": "labels", "MotionState": "state",
+}
+
+__all__ = sorted(_HOMES)
+
+
+def __getattr__(name: str) -> Any:
+    home = _HOMES.get(name)
+    if home is None:
+        raise AttributeError(f"module 'detach.motion' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"detach.motion.{home}"), name)
+    globals()[name] = value
+    return value

@@ -2,7 +2,10 @@
 
 All distances in metres, speeds in m/s. The support under a foot is the floor (z = 0) or a
 prop box listed in the clip's `meta["props"]` (a step, a seat). Self-penetration is measured
-with MuJoCo's exact geom distance (`mj_geomDistance`) between non-adjacent bodies.
+with MuJoCo's exact geom distance (`mj_geomDistance`) between non-adjacent bodies. Floating
+feet (both feet more than `FLOAT_CLEARANCE` above their support) catch clips lifted off the
+floor, e.g. by one glitched frame whose foot dipped below it before import placed the lowest
+foot on the floor.
 """
 
 from __future__ import annotations
@@ -18,6 +21,12 @@ from detach.character.body import BODY_NAMES, dof_ranges
 from detach.motion.clip import MotionClip
 from detach.motion.kinematics import humanoid_fk
 from detach.motion.placement import Terrain
+from detach.motion.travel import root_travel
+
+FLOAT_CLEARANCE = 0.03
+"""m: a frame whose lower foot is higher than this above its support floats."""
+FLOAT_FLAG = 0.5
+"""Fraction of floating frames from which `flags()` reports FLOAT (walks and jumps stay below)."""
 
 SELF_PAIRS: tuple[tuple[str, str], ...] = (
     ("left_hand", "torso"), ("right_hand", "torso"), ("left_hand", "pelvis"), ("right_hand", "pelvis"),
@@ -47,11 +56,32 @@ class Plausibility:
     min_prop_distance: float
     """Smallest distance between any body except the feet and a prop (inf without props)."""
     mean_speed: float
-    """Horizontal root displacement (first to last frame) / duration."""
+    """Net horizontal root displacement (first to last frame) / duration, m/s."""
     worst_self_pair: str = ""
     """The body pair (and frame) of min_self_distance, e.g. "left_hand/torso@12"."""
     worst_prop_body: str = ""
     """The body (and frame) of min_prop_distance."""
+    floating_fraction: float = 0.0
+    """Fraction of frames in which both feet are more than FLOAT_CLEARANCE above their support."""
+    path_length: float = 0.0
+    """Horizontal path of the root, metres (`detach.motion.travel`)."""
+    path_speed: float = 0.0
+    """path_length / duration, m/s."""
+
+    def flags(self) -> list[str]:
+        """Short names of what looks wrong: FLOAT (feet off the floor in most frames), BELOW
+        (a foot more than 1 cm inside its support), RANGE (a hinge outside its range),
+        SELF (limbs interpenetrate)."""
+        out = []
+        if self.floating_fraction >= FLOAT_FLAG:
+            out.append("FLOAT")
+        if self.lowest_foot < -0.01:
+            out.append("BELOW")
+        if self.range_violation > 1e-3:
+            out.append("RANGE")
+        if self.min_self_distance <= 0.0:
+            out.append("SELF")
+        return out
 
 
 def foot_clearance(clip: MotionClip) -> np.ndarray:
@@ -78,11 +108,14 @@ def check_clip(clip: MotionClip, self_pairs=SELF_PAIRS) -> Plausibility:
     skate = float(speed[down].max()) if down.any() else 0.0
     (self_d, self_at), (prop_d, prop_at) = _distances(clip, self_pairs)
     disp = np.linalg.norm(clip.root_pos[-1, :2] - clip.root_pos[0, :2])
+    travel = root_travel(clip.root_pos, clip.fps)
     return Plausibility(
         lowest_foot=float(clear.min()), max_support_gap=float(clear.min(axis=1).max()), foot_skate=skate,
         range_violation=float(max(viol, 0.0)), min_self_distance=self_d, min_prop_distance=prop_d,
         mean_speed=float(disp / clip.duration) if clip.duration > 0 else 0.0,
-        worst_self_pair=self_at, worst_prop_body=prop_at)
+        worst_self_pair=self_at, worst_prop_body=prop_at,
+        floating_fraction=float((clear.min(axis=1) > FLOAT_CLEARANCE).mean()),
+        path_length=travel.path_length, path_speed=travel.path_speed)
 
 
 @lru_cache(maxsize=8)
