@@ -23,14 +23,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from detach.config_schema import SceneObjectCfg, TaskCfg
 from scene_builder import procedural
 from scene_builder.cache import read_config
 from scene_builder.errors import AssetError
 from scene_builder.pipeline import (
-    PROCEDURAL, AssetRequest, BuildOptions, BuildResult, Planned, build_planned, check_cache, plan,
+    PROCEDURAL, AssetRequest, BuildOptions, BuildResult, Planned, Progress, build_planned, check_cache, plan,
+    print_line, source_identity,
 )
 
 __all__ = ["AssetError", "AssetInfo", "AssetRequest", "BuildOptions", "BuildResult", "build_assets",
@@ -135,6 +135,48 @@ def requests_from_task(
     return [req for _, _, req in seen.values()]
 
 
+def _claimed_by_another(p: Planned, out: Path) -> str | None:
+    """The source of an existing, different asset in the folder `p` would write, else None.
+
+    Same content (sha256) or same source (file path, procedural label: an edited source is a
+    rebuild) is the same asset; anything else would be silently replaced."""
+    config = read_config(p.request.folder(out))
+    if config is None or config.get("source_sha256") == p.sha256:
+        return None
+    old = config.get("source_path")
+    if old is None:  # built before source_path was recorded: best effort from `source`
+        old = str(config.get("source", ""))
+        old = old if old.startswith(f"{PROCEDURAL}:") else os.path.abspath(old)
+    return None if old == source_identity(p) else str(config.get("source", old))
+
+
+def _clashes(planned: dict[int, Planned], out: Path, force: bool) -> dict[int, str]:
+    """One-line errors for requests whose asset id is taken: by another request of this batch
+    (all of them fail: which one should win?) or, without `force`, by a different existing asset."""
+    errors: dict[int, str] = {}
+    by_folder: dict[Path, list[int]] = {}
+    for i, p in planned.items():
+        by_folder.setdefault(p.request.folder(out), []).append(i)
+    for folder, members in by_folder.items():
+        sources = {source_identity(planned[i]) for i in members}
+        requests = {planned[i].request for i in members}
+        if len(sources) > 1 or len(requests) > 1:
+            for i in members:
+                others = sorted({planned[j].label for j in members if planned[j].label != planned[i].label})
+                errors[i] = (f"{planned[i].label}: asset id {planned[i].request.category}/{planned[i].request.model_id} "
+                             f"is also claimed by {', '.join(others) or 'a differently-built copy'} in this batch; "
+                             "give one of them another id (--name CATEGORY/MODEL_ID, or separate runs with "
+                             "different --out)")
+    if not force:
+        for i, p in planned.items():
+            other = None if i in errors else _claimed_by_another(p, out)
+            if other is not None:
+                errors[i] = (f"{p.label}: {p.request.folder(out)} already holds a different asset (built from "
+                             f"{other}); pass --force to replace it, or --name CATEGORY/MODEL_ID to build this one "
+                             "under another id")
+    return errors
+
+
 def build_assets(
     requests: Sequence[AssetRequest],
     out: str | Path | None = None,
@@ -146,42 +188,62 @@ def build_assets(
     """Build every request into `out` (default `default_assets_root()`), one result each,
     in request order. Cached assets are skipped (a warm run only hashes and reads JSON);
     misses run in a process pool of `jobs` workers (default: all cores; 1 = in-process).
-    Never raises for a bad input: it comes back as a 'failed' result."""
+    An asset id already holding a different asset fails unless `force` (which also rebuilds
+    current assets); two requests of the batch with one id both fail.
+    `progress` prints a line per asset (and heartbeats while CoACD runs) on stdout, in
+    terminals and redirected logs alike. Never raises for a bad input: it comes back as a
+    'failed' result."""
     out = Path(out) if out is not None else default_assets_root()
     options = options or BuildOptions()
     results: dict[int, BuildResult] = {}
-    todo: list[tuple[int, Planned]] = []
+    planned: dict[int, Planned] = {}
     for i, req in enumerate(requests):
         try:
-            p = plan(req, options)
+            planned[i] = plan(req, options)
         except AssetError as e:
             results[i] = BuildResult(req, "failed", req.folder(out), error=str(e))
-            continue
+    for i, error in _clashes(planned, out, force).items():
+        results[i] = BuildResult(planned.pop(i).request, "failed", requests[i].folder(out), error=error)
+    todo: list[tuple[int, Planned]] = []
+    for i, p in planned.items():
         if not force and check_cache(p, out):
-            results[i] = BuildResult(req, "cached", req.folder(out))
+            results[i] = BuildResult(p.request, "cached", p.request.folder(out))
         else:
             todo.append((i, p))
+    say: Progress | None = print_line if progress else None
     jobs = max(1, min(jobs or os.cpu_count() or 1, len(todo)))
-    bar = tqdm(total=len(todo), desc="assets", unit="asset", disable=None if progress else True)
+    if say is not None and todo:
+        say(f"assets: building {len(todo)} of {len(requests)} into {out}/ ({jobs} worker{'s' * (jobs > 1)}; "
+            f"{len(requests) - len(todo) - sum(r.status == 'failed' for r in results.values())} cached)")
+    done = 0
+
+    def finished(i: int, result: BuildResult) -> None:
+        nonlocal done
+        results[i], done = result, done + 1
+        if say is not None:
+            what = (f"built in {result.seconds:.1f} s: {result.summary}" if result.status == "built"
+                    else f"{result.status}" + (" (see the error below)" if result.status == "failed" else ""))
+            say(f"[{done}/{len(todo)}] {result.request.category}/{result.request.model_id} {what}")
+
     if jobs == 1:
         for i, p in todo:
-            results[i] = build_planned(p, out, options)
-            bar.update()
+            if say is not None:
+                say(f"[{done + 1}/{len(todo)}] {p.request.category}/{p.request.model_id}: building from {p.label}")
+            finished(i, build_planned(p, out, options, say))
     else:  # spawn: no inherited Embree/OpenMP thread state from the parent
         todo_by_index = dict(todo)
         with ProcessPoolExecutor(jobs, mp_context=get_context("spawn")) as pool:
-            futures = {pool.submit(build_planned, p, out, options): i for i, p in todo}
+            futures = {pool.submit(build_planned, p, out, options, say): i for i, p in todo}
             for fut in as_completed(futures):
                 i = futures[fut]
                 try:
-                    results[i] = fut.result()
+                    result = fut.result()
                 except Exception as e:  # the worker died (e.g. a crash inside CoACD's C++ core)
                     p = todo_by_index[i]
-                    results[i] = BuildResult(p.request, "failed", p.request.folder(out),
-                                             error=f"{p.label}: worker process died ({type(e).__name__}), "
-                                                   "possibly while building another asset; retry with --jobs 1")
-                bar.update()
-    bar.close()
+                    result = BuildResult(p.request, "failed", p.request.folder(out),
+                                         error=f"{p.label}: worker process died ({type(e).__name__}), "
+                                               "possibly while building another asset; retry with --jobs 1")
+                finished(i, result)
     return [results[i] for i in range(len(requests))]
 
 

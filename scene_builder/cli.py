@@ -1,7 +1,12 @@
 """`detach-scene`: build, inspect and list the assets that scenes are made of.
 
 Exit codes: 0 success; 2 bad input (any asset failed, bad arguments, bad task file), with one
-line per problem on stderr; 1 a bug (printed with its traceback).
+line per problem on stderr; 1 a bug (printed with its traceback). Warnings (orientation, size,
+a moved target, a coarser CoACD threshold, decimation) are `warning: ...` lines on stderr and
+leave the exit code at 0; progress lines go to stdout, one per asset, also into logs.
+
+Imports of numpy, trimesh and the pipeline happen inside the commands, so `--help` starts in
+a fraction of a second.
 """
 
 from __future__ import annotations
@@ -13,15 +18,14 @@ import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from scene_builder import procedural
-from scene_builder.assets import (
-    AssetRequest, BuildOptions, build_assets, default_assets_root, load_asset, request_diff, requests_from_task,
-)
 from scene_builder.cache import PIPELINE_VERSION
 from scene_builder.errors import AssetError
-from scene_builder.heightmap import ENGINES, pick_engine
-from scene_builder.importers import discover
+from scene_builder.settings import ENGINES, GRIDS, HULL_FACES, MAX_FACES, TIME_BUDGET, UP_CHOICES
+
+if TYPE_CHECKING:
+    from scene_builder.assets import AssetRequest
 
 DEFAULT_TASKS = "configs/tasks/lh*.yaml"
 
@@ -30,14 +34,18 @@ examples:
   detach-scene build                         every asset of {DEFAULT_TASKS} (procedural library)
   detach-scene build --tasks configs/tasks/lh2.yaml --jobs 2
   detach-scene build --source ~/3D-FUTURE-model/            a folder of <jid>/normalized_model.obj
+  detach-scene build --source tokenhsi/objects/ --up z      TokenHSI's <category>/<model_id>/mesh.obj
   detach-scene build --source chair.glb --size 0.5 0.5 0.9  one mesh, stretched to that bbox
-  detach-scene build --source scan.ply --up z --scale 0.01  Z-up mesh in centimetres
+  detach-scene build --source scan.ply --up auto --scale 0.01  up axis from the geometry, centimetres
+  detach-scene build --source table.stl --name table/cad_01 --flip   an upside-down CAD part, named
   detach-scene inspect assets/chair/chair_v0
   detach-scene list [--source DIR]
 
 Assets go to <out>/<category>/<model_id>/ (out: --out, else $DETACH_ASSETS, else ./assets)
 and are rebuilt only when the source, the options or the pipeline version
-({PIPELINE_VERSION}) change. Exit code 2 when any asset failed (each failure is one line on stderr).
+({PIPELINE_VERSION}) change; an id already holding a different asset is an error unless --force.
+Ids, orientation checks, budgets and height-map grids: docs/ASSET_IMPORT.md.
+Exit code 2 when any asset failed (each failure is one line on stderr).
 """
 
 
@@ -57,13 +65,20 @@ def _parser() -> argparse.ArgumentParser:
                         "(<jid>/normalized_model.obj) or a folder of them, to import; with --tasks: the root that "
                         "non-procedural `source` paths of scene objects are relative to")
     b.add_argument("--out", metavar="DIR", help="asset root (default: $DETACH_ASSETS or ./assets)")
-    b.add_argument("--force", action="store_true", help="rebuild even when the cached asset is current")
+    b.add_argument("--force", action="store_true",
+                   help="rebuild even when the cached asset is current, and replace an existing asset of the same "
+                        "id that was built from a different source")
     b.add_argument("--jobs", type=int, metavar="N", help="parallel worker processes (default: all cores)")
-    b.add_argument("--up", choices=("y", "z"), default="y",
+    b.add_argument("--up", choices=UP_CHOICES, default="y",
                    help="up axis of imported meshes: y = 3D-FUTURE convention (Y up, front +Z; default), "
-                        "z = already Z up and facing +Y")
+                        "z = already Z up and facing +Y (TokenHSI), auto = chosen from the geometry (feet below, "
+                        "a closed top, stable); an explicit axis is checked and warned about")
+    b.add_argument("--flip", action="store_true",
+                   help="turn imported meshes upside down (180 deg about Y, after the up conversion)")
     b.add_argument("--yaw", type=float, default=0.0, metavar="DEG",
                    help="extra rotation about +Z (degrees, after the up conversion) to make the object face +Y")
+    b.add_argument("--name", metavar="[CATEGORY/]MODEL_ID",
+                   help="asset id of a single imported model (default: from its folders, docs/ASSET_IMPORT.md)")
     size = b.add_mutually_exclusive_group()
     size.add_argument("--scale", type=float, metavar="S", help="uniform scale to metres (imports only)")
     size.add_argument("--size", type=float, nargs=3, metavar=("X", "Y", "Z"),
@@ -79,6 +94,16 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--seed", type=int, default=0, help="CoACD seed (default 0)")
     b.add_argument("--ray-engine", choices=("auto", *ENGINES), default="auto",
                    help="height-map ray caster: auto = embree when embreex is installed, else numpy")
+    b.add_argument("--grid", choices=GRIDS, default="centres",
+                   help="height-map rays: centres = through the centres of 128x128 cells (default), "
+                        "linspace = TokenHSI's linspace(min, max, 128), on the bbox edges")
+    b.add_argument("--max-faces", type=int, default=MAX_FACES, metavar="N",
+                   help=f"decimate meshes above N faces before anything else (default {MAX_FACES})")
+    b.add_argument("--hull-faces", type=int, default=HULL_FACES, metavar="N",
+                   help=f"decimate CoACD's input to N faces (default {HULL_FACES})")
+    b.add_argument("--time-budget", type=float, default=TIME_BUDGET, metavar="S",
+                   help=f"seconds of CoACD per asset; past it the threshold is raised, then part hulls are used "
+                        f"(default {TIME_BUDGET:g})")
     b.set_defaults(func=_cmd_build)
 
     i = sub.add_parser("inspect", help="print an asset folder's summary as JSON")
@@ -93,16 +118,20 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _import_requests(args: argparse.Namespace) -> list[AssetRequest]:
+    from scene_builder.assets import AssetRequest
+    from scene_builder.importers import discover
+
     size = tuple(args.size) if args.size else None
-    return [AssetRequest(m.category, m.model_id, str(m.mesh_path), 0, args.up, args.yaw, args.scale, size)
-            for m in discover(Path(args.source), args.category)]
+    return [AssetRequest(m.category, m.model_id, str(m.mesh_path), 0, args.up, args.yaw, args.scale, size, args.flip)
+            for m in discover(Path(args.source), args.category, args.name)]
 
 
 def _task_requests(args: argparse.Namespace) -> list[AssetRequest]:
-    if args.scale is not None or args.size or args.yaw or args.category:
-        raise AssetError("--scale/--size/--yaw/--category apply to --source imports; "
+    if args.scale is not None or args.size or args.yaw or args.category or args.name or args.flip:
+        raise AssetError("--scale/--size/--yaw/--category/--name/--flip apply to --source imports; "
                          "with tasks, set `size` per scene object in the task YAML")
     from detach.config import ConfigError, load_task
+    from scene_builder.assets import request_diff, requests_from_task
 
     files = args.tasks or sorted(glob.glob(DEFAULT_TASKS))
     if not files:
@@ -123,13 +152,21 @@ def _task_requests(args: argparse.Namespace) -> list[AssetRequest]:
 
 
 def _cmd_build(args: argparse.Namespace) -> int:
+    from scene_builder.assets import BuildOptions, build_assets, default_assets_root
+    from scene_builder.heightmap import pick_engine
+
     out = Path(args.out) if args.out else default_assets_root()
     engine = pick_engine(args.ray_engine)
+    if args.name and args.tasks:
+        raise AssetError("--name applies to a single --source model, not to --tasks")
     requests = _import_requests(args) if args.source and not args.tasks else _task_requests(args)
     options = BuildOptions(args.coacd_threshold, args.max_hulls, args.max_hull_vertices, args.seed,
-                           args.ray_engine)
+                           args.ray_engine, args.max_faces, args.hull_faces, args.time_budget, args.grid)
     results = build_assets(requests, out, options, args.jobs, args.force, progress=True)
     failed = [r for r in results if r.status == "failed"]
+    for r in results:
+        for warning in r.warnings:
+            print(f"warning: {warning}", file=sys.stderr)
     for r in failed:
         if r.traceback:
             print(r.traceback, file=sys.stderr, end="")
@@ -144,6 +181,8 @@ def _cmd_build(args: argparse.Namespace) -> int:
 
 
 def _cmd_inspect(args: argparse.Namespace) -> int:
+    from scene_builder.assets import load_asset
+
     info = load_asset(args.asset_dir)
     h = info.height_map
     summary = {
@@ -158,6 +197,9 @@ def _cmd_inspect(args: argparse.Namespace) -> int:
 
 
 def _cmd_list(args: argparse.Namespace) -> int:
+    from scene_builder import procedural
+    from scene_builder.importers import discover
+
     if args.source:
         for m in discover(Path(args.source)):
             print(f"{m.category}/{m.model_id}\t{m.mesh_path}")

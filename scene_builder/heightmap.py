@@ -2,8 +2,16 @@
 
 Layout (docs/ARCHITECTURE.md, "Asset folder"): row 0 is max Y, the last row min Y; column 0 is min X;
 values are metres above the object's lowest point of the first surface a downward ray hits,
-0 where it hits nothing. Rays pass through cell centres, never the bbox edges, because Embree
-misses rays that graze the exact bbox edges; at cell centres both engines agree.
+0 where it hits nothing.
+
+Grids (docs/ASSET_IMPORT.md, "Height-map grids"):
+- "centres" (ours, default): rays through the centres of 128 x 128 equal cells of the bbox,
+  x = min + (i + 0.5) * extent / 128. Never on the bbox edges, where Embree misses grazing
+  rays; at cell centres both engines agree pixel for pixel.
+- "linspace" (TokenHSI's `get_heightmap_raytrace`): x = linspace(min, max, 128), the first and
+  last rows and columns on the bbox edges. Offered so maps can be compared and exchanged with
+  TokenHSI's; the numpy engine hits edge rays exactly, Embree gets its edge rays moved inside
+  by `EDGE_INSET` of the extent (it would miss them).
 
 Engines, chosen explicitly (trimesh's `mesh.ray` would pick one silently):
 - "embree": trimesh's Embree wrapper (package `embreex`), ~10-25 ms for 128x128.
@@ -17,9 +25,13 @@ import numpy as np
 import trimesh
 
 from scene_builder.errors import AssetError
+from scene_builder.settings import ENGINES, GRIDS, RESOLUTION
 
-RESOLUTION = 128
-ENGINES = ("embree", "numpy")
+__all__ = ["ENGINES", "GRIDS", "RESOLUTION", "embree_available", "grid_points", "height_map", "pick_engine",
+           "surface_top"]
+
+EDGE_INSET = 1e-7
+"""Fraction of the extent by which Embree's rays on the bbox edges move inside (linspace grid)."""
 
 
 def embree_available() -> bool:
@@ -47,6 +59,16 @@ def cell_centres(bounds: np.ndarray, res: int = RESOLUTION) -> tuple[np.ndarray,
     xs = x0 + (np.arange(res) + 0.5) * (x1 - x0) / res
     ys = y1 - (np.arange(res) + 0.5) * (y1 - y0) / res
     return xs, ys
+
+
+def grid_points(bounds: np.ndarray, res: int = RESOLUTION, grid: str = "centres") -> tuple[np.ndarray, np.ndarray]:
+    """(x per column ascending from min X, y per row descending from max Y) of a grid convention."""
+    if grid == "centres":
+        return cell_centres(bounds, res)
+    if grid != "linspace":
+        raise AssetError(f"height-map grid: unknown '{grid}' (expected {', '.join(GRIDS)})")
+    (x0, y0, _), (x1, y1, _) = bounds
+    return np.linspace(x0, x1, res), np.linspace(y1, y0, res)
 
 
 def _top_embree(mesh: trimesh.Trimesh, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
@@ -103,10 +125,32 @@ def _top_numpy(mesh: trimesh.Trimesh, xs: np.ndarray, ys: np.ndarray, max_pairs:
     return top.reshape(res_y, res_x)
 
 
-def height_map(mesh: trimesh.Trimesh, res: int = RESOLUTION, engine: str = "auto") -> tuple[np.ndarray, str]:
-    """(float32 [res, res] heights in metres above the mesh's lowest point, engine that ran)."""
+def surface_top(mesh: trimesh.Trimesh, res: int = RESOLUTION, engine: str = "auto", grid: str = "centres",
+                bounds: np.ndarray | None = None) -> tuple[np.ndarray, str]:
+    """(float64 [res, res] world z of the first surface hit, NaN where a ray misses; engine that ran).
+
+    `bounds` ([2, 3], default the mesh's) sets the grid: the pipeline passes the full-resolution
+    mesh's bounds when it casts onto a decimated copy, so the grid does not move."""
     engine = pick_engine(engine)
-    xs, ys = cell_centres(mesh.bounds, res)
-    top = (_top_embree if engine == "embree" else _top_numpy)(mesh, xs, ys)
-    h = np.where(np.isnan(top), 0.0, top - mesh.bounds[0, 2])
-    return np.maximum(h, 0.0).astype(np.float32), engine
+    bounds = np.asarray(mesh.bounds if bounds is None else bounds, dtype=np.float64)
+    xs, ys = grid_points(bounds, res, grid)
+    if engine == "embree" and grid == "linspace":
+        inset_x, inset_y = EDGE_INSET * (xs[-1] - xs[0]), EDGE_INSET * (ys[0] - ys[-1])
+        xs, ys = xs.copy(), ys.copy()
+        xs[0], xs[-1] = xs[0] + inset_x, xs[-1] - inset_x
+        ys[0], ys[-1] = ys[0] - inset_y, ys[-1] + inset_y
+    return (_top_embree if engine == "embree" else _top_numpy)(mesh, xs, ys), engine
+
+
+def heights_from_top(top: np.ndarray, floor_z: float) -> np.ndarray:
+    """float32 heights above `floor_z` (the lowest point), 0 where `top` is NaN (a miss)."""
+    h = np.where(np.isnan(top), 0.0, top - floor_z)
+    return np.maximum(h, 0.0).astype(np.float32)
+
+
+def height_map(mesh: trimesh.Trimesh, res: int = RESOLUTION, engine: str = "auto", grid: str = "centres",
+               bounds: np.ndarray | None = None) -> tuple[np.ndarray, str]:
+    """(float32 [res, res] heights in metres above the lowest point, engine that ran)."""
+    top, engine = surface_top(mesh, res, engine, grid, bounds)
+    floor_z = float((mesh.bounds if bounds is None else np.asarray(bounds))[0, 2])
+    return heights_from_top(top, floor_z), engine

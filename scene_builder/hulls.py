@@ -1,17 +1,176 @@
-"""Collision shapes: CoACD convex decomposition of the processed mesh.
+"""Collision shapes: CoACD convex decomposition of the processed mesh, within a time budget.
 
 MuJoCo collides each mesh geom through its convex hull, so a concave chair needs several
-convex pieces as geoms of one body. CoACD is slow (seconds to minutes), which is why the
-result is cached with the asset. Convex inputs (boxes, walls, cushions) skip CoACD: their
+convex pieces as geoms of one body. Convex inputs (boxes, walls, cushions) skip CoACD: their
 hull is the exact decomposition.
+
+CoACD's time is not bounded by its hull cap: real 25-29k-face CAD parts ran past 300 s at the
+default threshold 0.05 (0.1: ~60 s, 0.2: ~35 s, 0.5: 2-3 s). So every run happens in a child
+process (`scene_builder.coacd_worker`) that is killed when its share of the per-asset budget
+is spent, and the next try raises the threshold (coarser, fewer hulls, much faster):
+threshold t, 2t, 4t, ... up to `MAX_THRESHOLD` (0.05, 0.1, 0.2, 0.5), each try allowed half of
+the budget left (the last one all of it). When every try runs out of time, the fallback is bounded by construction:
+the convex hulls of the mesh's connected parts, or of `max_hulls` spatial clusters of its
+faces (k-means), merged down to `max_hulls`. What happened is returned as a `HullReport`
+(config.json "collision") and, when it is not plain CoACD at the requested threshold, as a
+warning. The input is decimated to `hull_faces` first, so memory follows that cap.
 """
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
 import numpy as np
 import trimesh
 
+from scene_builder.decimate import HULL_FACES, decimate
 from scene_builder.errors import AssetError
+from scene_builder.settings import TIME_BUDGET  # default seconds per asset; the procedural library needs ~1-2 s
+
+MAX_THRESHOLD = 0.5
+"""Coarsest CoACD threshold tried before the fallback (~2-3 s on real CAD parts)."""
+HEARTBEAT = 15.0
+"""Seconds between progress lines while CoACD runs."""
+
+
+@dataclass
+class HullReport:
+    """How the collision hulls were made (written to config.json "collision")."""
+
+    method: str = "convex"
+    """'convex' (the mesh is its own hull), 'coacd', or 'clusters' (fallback after the budget)."""
+    threshold: float | None = None
+    """CoACD threshold of the hulls that were kept (None unless method is 'coacd')."""
+    attempts: list[dict[str, Any]] = field(default_factory=list)
+    """One entry per CoACD try: threshold, seconds, timeout, outcome (ok/timeout), peak_rss_mb."""
+    input_faces: int = 0
+    """Faces CoACD saw (after decimation to the hull face cap)."""
+    budget_s: float = TIME_BUDGET
+
+    def warning(self, requested: float, hull_count: int) -> str | None:
+        """One clause saying what the budget changed, or None when nothing did."""
+        if self.method == "clusters":
+            tries = ", ".join(f"{a['threshold']:g}" for a in self.attempts) or "none started"
+            return (f"CoACD ran out of its {self.budget_s:g} s budget at every threshold ({tries}); "
+                    f"collision uses {hull_count} convex hulls of the mesh's parts instead "
+                    "(coarse; raise --time-budget for CoACD hulls)")
+        if self.method == "coacd" and self.threshold is not None and self.threshold > requested:
+            spent = sum(a["seconds"] for a in self.attempts if a["outcome"] == "timeout")
+            return (f"CoACD at threshold {requested:g} did not finish within the {self.budget_s:g} s budget "
+                    f"({spent:.0f} s spent on finer thresholds); used threshold {self.threshold:g} "
+                    "(coarser hulls; raise --time-budget to keep the finer threshold)")
+        return None
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"method": self.method, "threshold": self.threshold, "attempts": self.attempts,
+                "input_faces": self.input_faces, "budget_s": self.budget_s}
+
+
+Progress = Callable[[str], None]
+
+
+def thresholds(start: float) -> list[float]:
+    """The escalation ladder: start, 2*start, 4*start, ..., MAX_THRESHOLD last (a doubling that
+    would land within 2x of it is replaced by it: 0.05, 0.1, 0.2, 0.5)."""
+    out = [float(start)]
+    while out[-1] * 2.0 < MAX_THRESHOLD:
+        out.append(out[-1] * 2.0)
+    if out[-1] < MAX_THRESHOLD:
+        if len(out) > 1 and out[-1] * 2.0 > MAX_THRESHOLD * 1.5:
+            out[-1] = MAX_THRESHOLD
+        else:
+            out.append(MAX_THRESHOLD)
+    return out
+
+
+@dataclass(frozen=True)
+class Attempt:
+    outcome: str
+    """'ok' or 'timeout'."""
+    parts: list[tuple[np.ndarray, np.ndarray]]
+    seconds: float
+    peak_rss_mb: float | None = None
+
+
+def run_attempt(mesh: trimesh.Trimesh, params: dict[str, Any], timeout: float, label: str,
+                progress: Progress | None = None) -> Attempt:
+    """One CoACD run in a child process, killed after `timeout` seconds. AssetError (one line)
+    if CoACD fails or the child dies; a timeout is an Attempt with outcome 'timeout'."""
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="detach-coacd-") as tmp:
+        job = Path(tmp)
+        np.savez(job / "input.npz", vertices=np.asarray(mesh.vertices, dtype=np.float64),
+                 faces=np.asarray(mesh.faces, dtype=np.int32), params=np.str_(json.dumps(params)))
+        with open(job / "stderr.txt", "wb") as err:
+            proc = subprocess.Popen([sys.executable, "-m", "scene_builder.coacd_worker", str(job)],
+                                    stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err)
+            try:
+                while True:
+                    left = timeout - (time.perf_counter() - t0)
+                    try:
+                        proc.wait(timeout=max(0.0, min(HEARTBEAT, left)))
+                        break
+                    except subprocess.TimeoutExpired:
+                        spent = time.perf_counter() - t0
+                        if spent >= timeout:
+                            proc.kill()
+                            proc.wait()
+                            return Attempt("timeout", [], spent)
+                        if progress is not None:
+                            progress(f"{label}: CoACD threshold {params['threshold']:g} running for {spent:.0f} s "
+                                     f"(this try stops at {timeout:.0f} s)")
+            finally:
+                if proc.poll() is None:  # interrupted (Ctrl-C): do not leave CoACD running
+                    proc.kill()
+                    proc.wait()
+        seconds = time.perf_counter() - t0
+        if (job / "error.txt").is_file():
+            raise AssetError(f"{label}: CoACD convex decomposition failed ({(job / 'error.txt').read_text().strip()})")
+        if proc.returncode != 0 or not (job / "output.npz").is_file():
+            tail = (job / "stderr.txt").read_text(errors="replace").strip().splitlines()[-1:] or [""]
+            raise AssetError(f"{label}: CoACD process died (exit code {proc.returncode}) {tail[0]}".rstrip())
+        with np.load(job / "output.npz") as out:
+            parts = [(out[f"v{i}"], out[f"f{i}"]) for i in range(int(out["count"]))]
+            peak = float(out["peak_rss_mb"])
+    return Attempt("ok", parts, seconds, peak)
+
+
+def _to_hulls(parts: list[tuple[np.ndarray, np.ndarray]]) -> list[trimesh.Trimesh]:
+    return [trimesh.Trimesh(v, f, process=True) for v, f in parts if len(f) >= 4]
+
+
+def cluster_hulls(mesh: trimesh.Trimesh, max_hulls: int, seed: int = 0) -> list[trimesh.Trimesh]:
+    """Fallback decomposition, bounded in time (one split, one k-means, convex hulls): the hulls
+    of the mesh's connected parts when there are at most `max_hulls`, else of `max_hulls`
+    clusters of its face centres. Coarser than CoACD, but never empty and never slow."""
+    from scipy.cluster.vq import kmeans2
+
+    parts = mesh.split(only_watertight=False)
+    if 1 < len(parts) <= max_hulls:
+        groups = [np.asarray(p.vertices) for p in parts]
+    else:
+        k = max(1, min(max_hulls, len(mesh.faces)))
+        centres = np.asarray(mesh.triangles_center)
+        _, labels = kmeans2(centres, k, seed=seed, minit="++")
+        tri = np.asarray(mesh.triangles)
+        groups = [tri[labels == i].reshape(-1, 3) for i in range(k) if np.any(labels == i)]
+    hulls = []
+    for points in groups:
+        try:
+            hull = trimesh.Trimesh(points).convex_hull
+        except Exception:  # a flat or degenerate group (qhull refuses it): skip it
+            continue
+        if len(hull.faces) >= 4:
+            hulls.append(hull)
+    return hulls or [mesh.convex_hull]
 
 
 def convex_hulls(
@@ -21,33 +180,48 @@ def convex_hulls(
     max_hulls: int = 16,
     max_hull_vertices: int = 64,
     seed: int = 0,
-) -> tuple[list[trimesh.Trimesh], str]:
-    """(hulls in the mesh's frame, method 'convex' or 'coacd').
+    budget_s: float = TIME_BUDGET,
+    hull_faces: int = HULL_FACES,
+    progress: Progress | None = None,
+) -> tuple[list[trimesh.Trimesh], HullReport]:
+    """(hulls in the mesh's frame, report) within `budget_s` seconds of CoACD (plus ~0.3 s of
+    process start per try).
 
     `threshold` is CoACD's concavity tolerance (smaller = more, tighter hulls); `max_hulls`
     caps the count (CoACD merges beyond it) to keep MuJoCo's contact work bounded;
-    `max_hull_vertices` decimates each hull. `label` names the source in error messages.
-    Watertight meshes run with CoACD's preprocessing off (measured ~1 s vs ~12 s for a
-    manifold chair); others need its manifold remeshing ('auto').
+    `max_hull_vertices` decimates each hull. Watertight meshes run with CoACD's preprocessing
+    off (measured ~1 s vs ~12 s for a manifold chair); others need its manifold remeshing
+    ('auto'). `label` names the source in messages; `progress` hears heartbeat lines.
     """
+    report = HullReport(budget_s=float(budget_s))
     if mesh.is_watertight and mesh.is_convex:
-        return [mesh.convex_hull], "convex"
-    import coacd
-
-    coacd.set_log_level("error")
-    try:
-        parts = coacd.run_coacd(
-            coacd.Mesh(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int32)),
-            threshold=threshold,
-            max_convex_hull=max_hulls,
-            preprocess_mode="off" if mesh.is_watertight else "auto",
-            decimate=True,
-            max_ch_vertex=max_hull_vertices,
-            seed=seed,
-        )
-    except Exception as e:  # CoACD reports failures as assorted exceptions from its C++ core
-        raise AssetError(f"{label}: CoACD convex decomposition failed ({type(e).__name__}: {e})") from None
-    hulls = [trimesh.Trimesh(v, f, process=True) for v, f in parts if len(f) >= 4]
-    if not hulls:
-        raise AssetError(f"{label}: CoACD convex decomposition returned no hulls")
-    return hulls, "coacd"
+        report.input_faces = len(mesh.faces)
+        return [mesh.convex_hull], report
+    if not budget_s > 0:
+        raise AssetError(f"{label}: time budget must be > 0 s, got {budget_s}")
+    work, _ = decimate(mesh, hull_faces, label)
+    report.input_faces = len(work.faces)
+    preprocess = "off" if work.is_watertight else "auto"
+    ladder = thresholds(threshold)
+    deadline = time.perf_counter() + budget_s
+    for i, t in enumerate(ladder):
+        left = deadline - time.perf_counter()
+        if left <= 0:
+            break
+        timeout = left if i == len(ladder) - 1 else left / 2.0
+        params = {"threshold": t, "max_convex_hull": max_hulls, "preprocess_mode": preprocess,
+                  "decimate": True, "max_ch_vertex": max_hull_vertices, "seed": seed}
+        attempt = run_attempt(work, params, timeout, label, progress)
+        report.attempts.append({"threshold": t, "seconds": round(attempt.seconds, 2), "timeout": round(timeout, 2),
+                                "outcome": attempt.outcome, "peak_rss_mb": attempt.peak_rss_mb})
+        if attempt.outcome == "ok":
+            hulls = _to_hulls(attempt.parts)
+            if not hulls:
+                raise AssetError(f"{label}: CoACD convex decomposition returned no hulls")
+            report.method, report.threshold = "coacd", t
+            return hulls, report
+        if progress is not None:
+            progress(f"{label}: CoACD threshold {t:g} stopped after {attempt.seconds:.0f} s (budget); "
+                     f"{'trying a coarser threshold' if i + 1 < len(ladder) else 'using part hulls'}")
+    report.method = "clusters"
+    return cluster_hulls(work, max_hulls, seed), report

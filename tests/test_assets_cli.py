@@ -181,12 +181,13 @@ def test_bad_input_is_one_line_exit_2_and_leaves_nothing(tmp_path, capsys, name)
 
 
 def test_coacd_failure_is_one_line_exit_2_and_leaves_nothing(tmp_path, capsys, monkeypatch):
-    import coacd
+    from scene_builder import hulls
+    from scene_builder.errors import AssetError
 
-    def boom(*args, **kwargs):
-        raise RuntimeError("simulated CoACD crash")
+    def boom(mesh, params, timeout, label, progress=None):
+        raise AssetError(f"{label}: CoACD convex decomposition failed (RuntimeError: simulated CoACD crash)")
 
-    monkeypatch.setattr(coacd, "run_coacd", boom)
+    monkeypatch.setattr(hulls, "run_attempt", boom)
     src = save(step(), tmp_path / "step.obj")
     assert build("--source", src, "--out", tmp_path / "out", "--up", "z") == 2
     assert_one_line_error(capsys, "step.obj", tmp_path / "out")
@@ -210,7 +211,7 @@ def test_usage_errors_exit_2(tmp_path, capsys):
     assert main(["build", "--tasks", "configs/tasks/lh1.yaml", "--scale", "2"]) == 2
     assert "apply to --source imports" in capsys.readouterr().err
     assert main(["build", "--source", str(tmp_path), "--out", str(tmp_path / "o")]) == 2  # empty folder
-    assert "no 3D-FUTURE model folders" in capsys.readouterr().err
+    assert "no models found (looked for 3D-FUTURE model folders" in capsys.readouterr().err
 
 
 # ---- tasks, inspect, list, help ----------------------------------------------------------------
