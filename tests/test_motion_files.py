@@ -103,12 +103,13 @@ Y_UP_TO_Z_UP = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])
 
 def write_bvh(path: Path, family: str, root_cm: np.ndarray, knee_deg: np.ndarray, arms_deg: float = 90.0,
               unit: float = 1.0, z_up: bool = False, prefix: str = "", fps: float = 30.0,
-              knee_branch: np.ndarray | None = None) -> Path:
-    """Write the human in `family` doing the motion; lengths in `unit` cm (0.01: metres).
+              knee_branch: np.ndarray | None = None, channels: dict[str, np.ndarray] | None = None) -> Path:
+    """Write the human in `family` doing the motion; lengths in `unit` cm (100: metres).
 
     Channels are "Zrotation Xrotation Yrotation" (R = Rz Rx Ry). `knee_branch[f]` True writes
     frame f's knee bend on the other Euler branch (Z 180, X 180 - bend, Y 180: the same
-    rotation), as real exporters sometimes do."""
+    rotation), as real exporters sometimes do. `channels[semantic joint]` ([F, 3] Z, X, Y deg,
+    Y-up files only) sets any other joint, e.g. {"r_shin": ...}."""
     joints = skeleton(family, prefix)
     names = FAMILIES[family]
     convert = Y_UP_TO_Z_UP if z_up else np.eye(3)
@@ -122,6 +123,8 @@ def write_bvh(path: Path, family: str, root_cm: np.ndarray, knee_deg: np.ndarray
         else:
             values[:, k, 0] = sign * arms_deg
     values[:, knee, 1] = knee_deg
+    for semantic, zxy in (channels or {}).items():
+        values[:, [j.name for j in joints].index(prefix + names[semantic])] = zxy
     if knee_branch is not None:
         values[knee_branch, knee] = np.stack([np.full(knee_branch.sum(), 180.0), 180.0 - knee_deg[knee_branch],
                                               np.full(knee_branch.sum(), 180.0)], axis=-1)

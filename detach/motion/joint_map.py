@@ -170,12 +170,12 @@ def resolve(candidates: Sequence[str], file_names: Sequence[str]) -> str | None:
 
 def bind(jmap: JointMap, file_names: Sequence[str], where: str) -> BoundMap:
     """Resolve every name of `jmap` against a file's joints; RetargetError listing all missing."""
-    missing: list[str] = []
+    missing: dict[str, list[str]] = {}  # absent name (or candidates) -> roles needing it
 
     def find(cands: tuple[str, ...], role: str) -> str:
         found = resolve(cands, file_names)
         if found is None:
-            missing.append(f"{'|'.join(cands)} ({role})")
+            missing.setdefault("|".join(cands), []).append(role)
         return found or ""
 
     root = find(jmap.root, "root")
@@ -185,8 +185,9 @@ def bind(jmap: JointMap, file_names: Sequence[str], where: str) -> BoundMap:
         aim = find(spec.aim, f"{ours} aim") if spec.aim else None
         joints[ours] = (src, aim)
     if missing:
+        listed = ", ".join(f"{name} ({', '.join(roles)})" for name, roles in missing.items())
         raise RetargetError(f"{where}: map '{jmap.name}' needs {len(missing)} joint(s) the file does not have: "
-                            f"{', '.join(missing)}; file joints: {', '.join(file_names)}; try --map auto, another "
+                            f"{listed}; file joints: {', '.join(file_names)}; try --map auto, another "
                             f"shipped map ({', '.join(available_maps())}) or your own (format: {MAP_FORMAT_DOC})")
     return BoundMap(jmap, root, joints)
 
