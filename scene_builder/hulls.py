@@ -149,28 +149,51 @@ def _to_hulls(parts: list[tuple[np.ndarray, np.ndarray]]) -> list[trimesh.Trimes
 
 def cluster_hulls(mesh: trimesh.Trimesh, max_hulls: int, seed: int = 0) -> list[trimesh.Trimesh]:
     """Fallback decomposition, bounded in time (one split, one k-means, convex hulls): the hulls
-    of the mesh's connected parts when there are at most `max_hulls`, else of `max_hulls`
-    clusters of its face centres. Coarser than CoACD, but never empty and never slow."""
+    of the mesh's connected parts when there are 2 to `max_hulls` of them, else of `max_hulls`
+    k-means clusters of points on its surface (flat clusters merge into their nearest
+    neighbour: a flat hull collides with nothing). Coarser than CoACD, never empty, never slow.
+    Written here because CoACD is the only decomposition library we depend on and it is what
+    ran out of time."""
     from scipy.cluster.vq import kmeans2
 
     parts = mesh.split(only_watertight=False)
     if 1 < len(parts) <= max_hulls:
         groups = [np.asarray(p.vertices) for p in parts]
     else:
-        k = max(1, min(max_hulls, len(mesh.faces)))
-        centres = np.asarray(mesh.triangles_center)
-        _, labels = kmeans2(centres, k, seed=seed, minit="++")
-        tri = np.asarray(mesh.triangles)
-        groups = [tri[labels == i].reshape(-1, 3) for i in range(k) if np.any(labels == i)]
-    hulls = []
-    for points in groups:
-        try:
-            hull = trimesh.Trimesh(points).convex_hull
-        except Exception:  # a flat or degenerate group (qhull refuses it): skip it
-            continue
-        if len(hull.faces) >= 4:
-            hulls.append(hull)
+        surface, _ = trimesh.sample.sample_surface(mesh, 4000, seed=seed)
+        points = np.concatenate([np.asarray(mesh.vertices), surface])
+        _, labels = kmeans2(points, max(1, max_hulls), seed=seed, minit="++")
+        groups = [points[labels == i] for i in range(max_hulls) if np.any(labels == i)]
+    hulls = _solid_hulls(groups, tolerance=1e-9 * float(mesh.scale) ** 3)
     return hulls or [mesh.convex_hull]
+
+
+def _solid_hulls(groups: list[np.ndarray], tolerance: float) -> list[trimesh.Trimesh]:
+    """Convex hulls of point groups; a group whose hull has no volume joins the group with the
+    nearest centroid until every hull is solid (or one group is left)."""
+    groups = [g for g in groups if len(g)]
+    while groups:
+        hulls, flat = [], None
+        for k, points in enumerate(groups):
+            try:
+                hull = trimesh.Trimesh(points).convex_hull
+            except Exception:  # qhull refuses a coplanar or collinear group
+                hull = None
+            if hull is None or len(hull.faces) < 4 or not hull.volume > tolerance:
+                flat = k
+                break
+            hulls.append(hull)
+        if flat is None:
+            return hulls
+        if len(groups) == 1:
+            return []
+        centres = np.array([g.mean(axis=0) for g in groups])
+        dist = np.linalg.norm(centres - centres[flat], axis=1)
+        dist[flat] = np.inf
+        nearest = int(np.argmin(dist))
+        groups[nearest] = np.concatenate([groups[nearest], groups[flat]])
+        del groups[flat]
+    return []
 
 
 def convex_hulls(

@@ -179,3 +179,15 @@ def test_ensure_assets_reports_failures_in_one_line(tmp_path):
 def test_load_asset_rejects_non_asset_folders(tmp_path):
     with pytest.raises(AssetError, match="not an asset folder"):
         load_asset(tmp_path)
+
+
+def test_default_options_keep_the_cache_keys_of_existing_procedural_assets():
+    """New options enter a cache key only when set, and procedural sources get no import-rules
+    stamp: the assets built before them stay current (no rebuild of ./assets for everyone)."""
+    from scene_builder.pipeline import AssetRequest, BuildOptions, plan
+
+    assert BuildOptions().key_options() == {"coacd_threshold": 0.05, "max_hulls": 16, "max_hull_vertices": 64, "seed": 0}
+    assert BuildOptions(time_budget=30.0, grid="linspace").key_options()["grid"] == "linspace"
+    planned = plan(AssetRequest("chair", "chair_v0"), BuildOptions())
+    assert planned.options == {"variant": 0, "up": "y", "yaw": 0.0, "scale": None, "size": None,
+                               "coacd_threshold": 0.05, "max_hulls": 16, "max_hull_vertices": 64, "seed": 0}

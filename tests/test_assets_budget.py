@@ -1,0 +1,132 @@
+"""Bounded time and memory (issue 20, item 2): face caps with fast-simplification, CoACD's
+per-asset time budget with escalation and a bounded fallback, progress lines in logs."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+import trimesh
+
+from scene_builder import hulls
+from scene_builder.decimate import decimate
+from scene_builder.errors import AssetError
+from scene_builder.hulls import Attempt, convex_hulls, thresholds
+from tests.test_assets_cli import build, save, step
+
+
+def config(folder) -> dict:
+    return json.loads((folder / "config.json").read_text())
+
+
+def test_threshold_ladder_doubles_up_to_the_coarsest():
+    assert thresholds(0.05) == [0.05, 0.1, 0.2, 0.5]
+    assert thresholds(0.2) == [0.2, 0.5]
+    assert thresholds(0.5) == [0.5] and thresholds(0.8) == [0.8]
+
+
+def test_a_mesh_above_the_face_cap_is_decimated_before_everything_and_keeps_its_bbox(tmp_path, capsys):
+    sphere = trimesh.creation.icosphere(subdivisions=5, radius=0.4)  # 20480 faces
+    src = save(sphere, tmp_path / "ball.ply")
+    assert build("--source", src, "--up", "z", "--max-faces", "2000", "--hull-faces", "500",
+                 "--out", tmp_path / "o") == 0
+    cfg = config(tmp_path / "o" / "imported" / "ball")
+    assert cfg["mesh"]["source_faces"] == 20480 and cfg["mesh"]["decimated"] and cfg["mesh"]["faces"] <= 2000
+    assert cfg["bbox"] == pytest.approx(sphere.extents, abs=1e-6)  # from the full-resolution mesh (float32 PLY)
+    assert cfg["tarClimbPos"][2] == pytest.approx(0.4, abs=0.01)
+    mesh = trimesh.load(tmp_path / "o" / "imported" / "ball" / "mesh.obj", force="mesh")
+    assert len(mesh.faces) <= 2000
+    assert "decimated to" in capsys.readouterr().err
+    # under the cap nothing changes
+    assert build("--source", src, "--up", "z", "--out", tmp_path / "full") == 0
+    assert config(tmp_path / "full" / "imported" / "ball")["mesh"]["faces"] == 20480
+
+
+def test_decimate_keeps_the_shape_and_always_reaches_the_cap():
+    sphere = trimesh.creation.uv_sphere(radius=0.5, count=[120, 120])
+    out, info = decimate(sphere, 6000, "sphere")
+    assert info.method == "quadric" and info.faces_in == len(sphere.faces) and len(out.faces) <= 6000
+    assert np.allclose(out.bounds, sphere.bounds, atol=0.005)  # faithful first pass
+    same, info = decimate(sphere, len(sphere.faces), "sphere")
+    assert same is sphere and not info.applied
+    # CAD-style legs: fans of 256 thin triangles, which quadric collapse cannot reduce at all
+    legs = trimesh.util.concatenate([trimesh.creation.cylinder(radius=0.03, height=0.7, sections=256)
+                                     .apply_translation((x, y, 0)) for x in (-0.5, 0.5) for y in (-0.3, 0.3)])
+    out, info = decimate(legs, 400, "legs")
+    assert info.method == "quadric+clustering" and 0 < len(out.faces) <= 400
+    assert np.allclose(out.bounds, legs.bounds, atol=0.03)
+
+
+def test_coacd_over_budget_escalates_the_threshold_and_reports_it(monkeypatch, tmp_path, capsys):
+    """Fine thresholds 'time out' (simulated: the real child is killed the same way, see below);
+    the first coarse enough one is kept, and the build says so."""
+    real = hulls.run_attempt
+    tried = []
+
+    def slow_below_02(mesh, params, timeout, label, progress=None):
+        tried.append((params["threshold"], round(timeout, 1)))
+        if params["threshold"] < 0.2:
+            return Attempt("timeout", [], timeout)
+        return real(mesh, params, timeout, label, progress)
+
+    monkeypatch.setattr(hulls, "run_attempt", slow_below_02)
+    src = save(step(), tmp_path / "step.obj")
+    assert build("--source", src, "--up", "z", "--time-budget", "40", "--out", tmp_path / "o") == 0
+    assert [t for t, _ in tried] == [0.05, 0.1, 0.2]
+    assert tried[0][1] == pytest.approx(20, abs=0.5)  # half the budget (the simulated timeouts take no time)
+    cfg = config(tmp_path / "o" / "imported" / "step")["collision"]
+    assert cfg["method"] == "coacd" and cfg["threshold"] == 0.2 and cfg["budget_s"] == 40
+    assert [a["outcome"] for a in cfg["attempts"]] == ["timeout", "timeout", "ok"]
+    captured = capsys.readouterr()
+    assert "CoACD at threshold 0.05 did not finish within the 40 s budget" in captured.err
+    assert "used threshold 0.2" in captured.err
+    assert "CoACD threshold 0.05 stopped after" in captured.out  # progress line
+
+
+def test_a_real_coacd_run_is_killed_at_its_budget_and_the_fallback_is_bounded(tmp_path):
+    """A budget far below what CoACD needs: every try is killed, the part hulls are used, and
+    the whole call stays within the budget plus process start-ups."""
+    mesh = step()
+    t0 = time.perf_counter()
+    pieces, report = convex_hulls(mesh, "step", budget_s=0.6)
+    elapsed = time.perf_counter() - t0
+    assert report.method == "clusters" and all(a["outcome"] == "timeout" for a in report.attempts)
+    assert 1 <= len(pieces) <= 16 and all(p.is_convex for p in pieces)
+    assert elapsed < 0.6 + 4 * 1.5, elapsed  # budget + at most ~1.5 s per kill and start-up
+    assert "ran out of its 0.6 s budget" in report.warning(0.05, len(pieces))
+    lo = np.min([p.bounds[0] for p in pieces], axis=0)
+    hi = np.max([p.bounds[1] for p in pieces], axis=0)
+    assert np.allclose(lo, mesh.bounds[0], atol=1e-6) and np.allclose(hi, mesh.bounds[1], atol=1e-6)
+
+
+def test_a_crashing_coacd_child_is_one_line():
+    broken = trimesh.Trimesh(np.random.default_rng(0).random((4, 3)), [[0, 1, 7]], process=False, validate=False)
+    params = {"threshold": 0.05, "max_convex_hull": 4, "preprocess_mode": "off", "decimate": True,
+              "max_ch_vertex": 64, "seed": 0}
+    with pytest.raises(AssetError, match=r"^broken: CoACD process died \(exit code -?\d+\)") as err:
+        hulls.run_attempt(broken, params, 30.0, "broken")
+    assert "\n" not in str(err.value)
+
+
+def test_heartbeat_lines_while_coacd_runs(monkeypatch):
+    monkeypatch.setattr(hulls, "HEARTBEAT", 0.1)
+    lines: list[str] = []
+    pieces, report = convex_hulls(step(), "step", progress=lines.append)
+    assert report.method == "coacd" and pieces
+    assert any(line.startswith("step: CoACD threshold 0.05 running for") for line in lines), lines
+
+
+def test_progress_lines_reach_a_log_that_is_not_a_terminal(tmp_path):
+    """`detach-scene build > log`: one line per asset in the file, no terminal needed."""
+    src = save(step(), tmp_path / "step.obj")
+    log = tmp_path / "build.log"
+    with open(log, "w") as fh:
+        proc = subprocess.run([sys.executable, "-m", "scene_builder.cli", "build", "--source", str(src), "--up", "z",
+                               "--out", str(tmp_path / "o"), "--jobs", "1"], stdout=fh, stderr=subprocess.STDOUT)
+    text = log.read_text()
+    assert proc.returncode == 0, text
+    assert "assets: building 1 of 1" in text and "[1/1] imported/step built in" in text and "hulls (coacd 0.05)" in text
