@@ -34,7 +34,10 @@ class MultiHeadAttention(nn.Module):
             self.qkv = nn.Linear(dim, 3 * dim)
         self.out = nn.Linear(dim, dim)
 
-    def forward(self, x: torch.Tensor, context: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(self, x: torch.Tensor, context: torch.Tensor | None = None,
+                visible: torch.Tensor | None = None) -> torch.Tensor:
+        """`visible` [N, Lk] bool (optional): the keys each sample may attend to (a key padding
+        mask with True = attend, e.g. TokenHSI's hiding of inactive task tokens)."""
         n, lq, dim = x.shape
         h = self.heads
         if self.cross:
@@ -44,7 +47,8 @@ class MultiHeadAttention(nn.Module):
             k, v = self.kv(context).view(n, context.shape[1], 2, h, dim // h).permute(2, 0, 3, 1, 4).unbind(0)
         else:
             q, k, v = self.qkv(x).view(n, lq, 3, h, dim // h).permute(2, 0, 3, 1, 4).unbind(0)
-        a = F.scaled_dot_product_attention(q, k, v)
+        mask = None if visible is None else visible[:, None, None, :]
+        a = F.scaled_dot_product_attention(q, k, v, attn_mask=mask)
         return self.out(a.transpose(1, 2).reshape(n, lq, dim))
 
 

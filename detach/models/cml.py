@@ -1,11 +1,21 @@
-"""CML baseline trunk: a GRU encodes the observation history; the critic has one value head per
-reward objective (the heads live in `rsl_rl_models.StructuredModel`, available to every kind).
+"""CML (Xu et al. 2023, "Composite Motion Learning with Task Control") as this platform runs it.
 
-The GRU runs over the T self steps, each step's input being [self frame; env frame] (the env
-history resampled to T steps when its length differs). Its last hidden state, the task one-hot
-and any extra flat group (the privileged `critic` group) form the latent of the MLP head.
-The GRU only spans the observation window, so the model is not recurrent for rsl-rl
+Network: a GRU encodes the observation history; its last hidden state, the task one-hot and any
+extra flat group (the privileged `critic` group) form the latent of the MLP head ([1024, 512],
+CML's actor and critic MLPs). The GRU runs over the T self steps, each step's input being
+[self frame; env frame] (the env history resampled to T steps when its length differs). It
+only spans the observation window, so the model is not recurrent for rsl-rl
 (`is_recurrent = False`, no hidden state carried across env steps).
+
+Multi-objective learning: the critic has one value head per reward objective
+(`critic_objectives`: task and one per body-part discriminator, `train.amp.body_parts`), GAE
+runs per objective and advantages are normalised per objective before their weighted sum
+(`train.per_objective_advantage_norm`; `detach.train.amp_ppo.AmpPPO`).
+
+Incremental learning (`incremental`): the policy of the previous stage (`train.init_from`)
+becomes CML's frozen meta policy and a cooperative policy (`detach.models.adapters`) learns
+the new skills by mixing its own action with the meta action per action dimension. See
+`CMLModel` in `rsl_rl_models`.
 """
 
 from __future__ import annotations
@@ -24,6 +34,14 @@ class CMLCfg(TrunkModelCfg):
 
     kind: str = "cml"
     gru_hidden: int = 256
+    incremental: bool = False
+    """The policy is a frozen meta policy (this network, weights from `train.init_from`) plus a
+    trainable cooperative policy that mixes its action in per action dimension."""
+
+    def invalid(self) -> tuple[str, str] | None:
+        if self.incremental and self.shared_trunk:
+            return "incremental", "the meta policy is frozen; a critic cannot share its trunk (shared_trunk)"
+        return None
 
 
 class CMLTrunk(nn.Module):

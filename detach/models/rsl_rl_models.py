@@ -9,8 +9,9 @@ adapter MLP `adapter_units`, e.g. [1024, 512]) is the policy head (Gaussian acti
 rsl-rl's distribution) or the value head.
 
 Actor and critic: rsl-rl builds two instances of the same class. By default each has its own
-trunk, the critic with the extra privileged `critic` group as one more token/input; train both
-with the auxiliary losses or copy the pretrained encoders with `critic.load_encoders_from(actor)`.
+trunk (`make_trunk`; TokenHSI's critic is a plain MLP on the `critic` group), the critic with the
+extra privileged `critic` group as one more token/input; train both with the auxiliary losses
+or copy the pretrained encoders with `critic.load_encoders_from(actor)`.
 With `model.shared_trunk` (the paper's design: V(s) = ValueHead(h_transformer)) the critic
 builds its trunk on the actor's groups and `link_shared_trunk(actor, critic)` (called by
 `build_actor_critic` and `AmpPPO` before the optimiser exists) swaps it for the actor's: the
@@ -26,28 +27,36 @@ outputs K values. `forward(obs)` — what PPO's value path gets — returns [N, 
 sum Σ_k w_k V_k (weights `objective_weights`, default 1; set them to the reward weights so that
 the sum is the value of the combined reward). `value_heads(obs)` returns [N, K] in objective
 order, for a trainer that computes GAE and normalises advantages per objective.
+
+Later training stages (TokenHSI's adapters, CML's incremental learning): the model of the new
+stage freezes the previous stage's policy (requires_grad False, input statistics not updated),
+adds its new module behind `head_output` and names that module's state-dict prefixes in
+`new_parameter_prefixes()`, the keys a checkpoint of the previous stage lacks.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
 from itertools import chain
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import torch
 import torch.nn as nn
 from rsl_rl.models import MLPModel
 from rsl_rl.modules import HiddenState
+from rsl_rl.utils import unpad_trajectories
 from tensordict import TensorDict
 
 from detach.config_schema import ModelCfg
 from detach.envs.obs_spec import ObsSpec
+from detach.models.adapters import CooperativePolicy, HeadAdapter
 from detach.models.cml import CMLCfg, CMLTrunk
 from detach.models.detach_net import DetachCfg, DetachFeatures, DetachTrunk
 from detach.models.layout import ObsLayout
 from detach.models.losses import combine_aux_losses
 from detach.models.mlp import FlatTrunk, MLPCfg
-from detach.models.tokenhsi import TokenHSICfg, TokenHSITrunk
+from detach.models.tokenhsi import ACTIVE_SKILLS, TokenHSICfg, TokenHSITrunk, TokenHSIValueTrunk
+from detach.skills import canonical_name
 
 
 class StructuredModel(MLPModel):
@@ -90,7 +99,8 @@ class StructuredModel(MLPModel):
             if missing:
                 raise ValueError(f"shared_trunk: the {obs_set} set lacks the actor's groups {missing}")
             trunk_layout = ObsLayout.from_obs(obs, obs_groups["actor"], spec)
-        trunk = self.trunk_class(trunk_layout, cfg)
+        value_only = distribution_cfg is None and not reads_actor_trunk
+        trunk = self.make_trunk(trunk_layout, cfg, value_only)
         head_groups = tuple(g for g in layout.groups if g not in trunk_layout.groups)
         objectives = tuple(value_objectives or ())
         if objectives and distribution_cfg is not None:
@@ -104,7 +114,7 @@ class StructuredModel(MLPModel):
             obs_groups,
             obs_set,
             len(objectives) if objectives else output_dim,
-            hidden_dims=tuple(cfg.adapter_units),
+            hidden_dims=self.head_units(cfg, value_only),
             activation=cfg.activation,
             obs_normalization=cfg.obs_normalization,
             distribution_cfg=distribution_cfg,
@@ -118,6 +128,28 @@ class StructuredModel(MLPModel):
         self.value_objectives = objectives
         if objectives:
             self.register_buffer("objective_weights", torch.ones(len(objectives)))
+
+    # ----- hooks of the model kinds -----
+    @classmethod
+    def make_trunk(cls, layout: ObsLayout, cfg: ModelCfg, value_only: bool) -> nn.Module:
+        """The trunk on `layout`; `value_only` for a critic with a trunk of its own."""
+        return cls.trunk_class(layout, cfg)
+
+    @classmethod
+    def head_units(cls, cfg: ModelCfg, value_only: bool) -> tuple[int, ...]:
+        """Hidden widths of the head MLP (`adapter_units` unless a kind's critic differs)."""
+        return tuple(cfg.adapter_units)
+
+    def head_output(self, latent: torch.Tensor, obs: TensorDict) -> torch.Tensor:
+        """The head's raw output on the latent: the distribution's input (actor) or the values
+        (critic). A later training stage's model adds its adapter or cooperative policy here."""
+        return self.mlp(latent)
+
+    def new_parameter_prefixes(self) -> tuple[str, ...]:
+        """State-dict key prefixes of modules this model adds to the previous training stage's
+        (an adapter, a cooperative policy): a checkpoint of that stage lacks exactly these
+        keys, so `train.init_from` lets them be missing and requires every other key."""
+        return ()
 
     # ----- rsl-rl API -----
     def _get_latent_dim(self) -> int:
@@ -179,7 +211,14 @@ class StructuredModel(MLPModel):
         hidden_state: HiddenState = None,
         stochastic_output: bool = False,
     ) -> torch.Tensor:
-        out = super().forward(obs, masks, hidden_state, stochastic_output)
+        """rsl-rl's `MLPModel.forward` with the head behind `head_output`."""
+        obs = unpad_trajectories(obs, masks) if masks is not None and not self.is_recurrent else obs
+        out = self.head_output(self.get_latent(obs, masks, hidden_state), obs)
+        if self.distribution is not None:
+            if stochastic_output:
+                self.distribution.update(out)
+                return self.distribution.sample()
+            return self.distribution.deterministic_output(out)
         if self.value_objectives and self.sum_value_heads:
             return (out * self.objective_weights).sum(-1, keepdim=True)
         return out
@@ -195,7 +234,7 @@ class StructuredModel(MLPModel):
         """Per-objective values [N, K] (order of `value_objectives`)."""
         if not self.value_objectives:
             raise ValueError(f"{type(self).__name__} was built without value_objectives")
-        return self.mlp(self.get_latent(obs))
+        return self.head_output(self.get_latent(obs), obs)
 
     def set_objective_weights(self, weights: Sequence[float] | torch.Tensor) -> None:
         """w_k of forward's Σ_k w_k V_k (e.g. task and style reward weights)."""
@@ -309,17 +348,109 @@ def link_shared_trunk(actor: nn.Module, critic: nn.Module) -> None:
 
 
 class TokenHSIModel(StructuredModel):
-    """TokenHSI baseline: per-group tokenizers, action token, transformer, MLP head."""
+    """TokenHSI (`detach.models.tokenhsi`): tokenizers, masked transformer, action-token head;
+    as a critic, a separate MLP on the `critic` group (`critic_units`).
+
+    Adapter stage (`adapt_skills`, actor only): TokenHSI's way of learning skills after the
+    base is trained. Frozen (requires_grad False, never stepped): the proprioception tokenizer,
+    the task tokenizers of the other skills, the action token, the transformer, the action head
+    and the input normaliser (its statistics stay those of the previous stage, and the adapted
+    skills' tokenizers read through it too). Trained: the adapted skills' task tokenizers,
+    the `HeadAdapter` (new, zero-initialised: the first actions are the base policy's) and the
+    action std (PPO's exploration noise; TokenHSI keeps it constant in both stages). The
+    critic is not frozen: it starts from the previous stage's critic (same input, same shape)
+    and trains fully, where TokenHSI's adapter stage builds a fresh critic; the critic only
+    shapes the advantages, and a warm start keeps `train.init_from` a plain load.
+    """
 
     trunk_class = TokenHSITrunk
     config_class = TokenHSICfg
+    cfg: TokenHSICfg
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.adapter: HeadAdapter | None = None
+        if self.cfg.adapt_skills and self.distribution is not None:
+            self.adapter = HeadAdapter(self.mlp)
+            adapted = [self.trunk.task_tokenizers[canonical_name(s)] for s in self.cfg.adapt_skills]
+            trained = {id(p) for m in (*adapted, self.adapter, self.distribution) for p in m.parameters()}
+            for p in self.parameters():
+                if id(p) not in trained:
+                    p.requires_grad_(False)
+
+    @classmethod
+    def make_trunk(cls, layout: ObsLayout, cfg: ModelCfg, value_only: bool) -> nn.Module:
+        return TokenHSIValueTrunk(layout, cfg) if value_only else TokenHSITrunk(layout, cfg)
+
+    @classmethod
+    def head_units(cls, cfg: ModelCfg, value_only: bool) -> tuple[int, ...]:
+        return tuple(cfg.critic_units if value_only else cfg.adapter_units)
+
+    def normalized_groups(self, obs: TensorDict) -> dict[str, torch.Tensor]:
+        groups = super().normalized_groups(obs)
+        if "task" in self.layout.groups:
+            groups[ACTIVE_SKILLS] = obs["task"] > 0.5
+        return groups
+
+    def head_output(self, latent: torch.Tensor, obs: TensorDict) -> torch.Tensor:
+        return self.mlp(latent) if self.adapter is None else self.adapter(self.mlp, latent)
+
+    def update_normalization(self, obs: TensorDict) -> None:
+        if self.adapter is None:
+            super().update_normalization(obs)
+
+    def new_parameter_prefixes(self) -> tuple[str, ...]:
+        return () if self.adapter is None else ("adapter.",)
 
 
 class CMLModel(StructuredModel):
-    """CML baseline: GRU over the observation window; use with value_objectives for its multi-critic."""
+    """CML (`detach.models.cml`): GRU over the observation window; with value_objectives, its
+    multi-objective critic.
+
+    Incremental learning (`incremental`, actor only; CML's meta policy + cooperative policy,
+    implemented from the CML paper's description, its public code does not contain it): this
+    network is the meta policy, loaded from the previous stage (`train.init_from`) and frozen
+    (parameters and input normaliser); a `CooperativePolicy` (new, own normaliser, trained)
+    mixes its action in per action dimension, starting with the mix equal to the meta action.
+    The action std stays trainable (PPO's exploration noise; CML's is state-dependent, ours
+    rsl-rl's state-independent one). The critic is not frozen: it starts from the previous
+    stage's multi-objective critic and trains fully.
+    """
 
     trunk_class = CMLTrunk
     config_class = CMLCfg
+    cfg: CMLCfg
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.cooperative: CooperativePolicy | None = None
+        if self.cfg.incremental and self.distribution is not None:
+            meta = [p for p in self.parameters() if not any(p is q for q in self.distribution.parameters())]
+            for p in meta:
+                p.requires_grad_(False)
+            self.cooperative = CooperativePolicy(self.layout, self.cfg, self.distribution.output_dim)
+
+    def _raw_input(self, obs: TensorDict) -> torch.Tensor:
+        return torch.cat([obs[g] for g in self.obs_groups], dim=-1)
+
+    def head_output(self, latent: torch.Tensor, obs: TensorDict) -> torch.Tensor:
+        meta = self.mlp(latent)
+        return meta if self.cooperative is None else self.cooperative.mix(meta, self._raw_input(obs))
+
+    def mixing_weights(self, obs: TensorDict) -> torch.Tensor:
+        """w [N, num_actions] in [0, 1]: the cooperative policy's share of each action dimension."""
+        if self.cooperative is None:
+            raise ValueError("mixing_weights: this CML model is not incremental")
+        return self.cooperative(self._raw_input(obs))[1]
+
+    def update_normalization(self, obs: TensorDict) -> None:
+        if self.cooperative is None:
+            super().update_normalization(obs)
+        else:
+            self.cooperative.update_normalization(self._raw_input(obs))
+
+    def new_parameter_prefixes(self) -> tuple[str, ...]:
+        return () if self.cooperative is None else ("cooperative.",)
 
 
 class MLPBaselineModel(StructuredModel):

@@ -1,81 +1,156 @@
-"""TokenHSI-style baseline trunk: one tokenizer per observation group, a unified token space.
+"""TokenHSI (Pan et al. 2025) as published: tokenizers, masked shared transformer, adapters.
 
-Each group becomes one d_model token through its own MLP tokenizer (`tokenizer_units`, e.g.
-[256, 128] -> 64): proprioception (the flattened self history), the task one-hot, the
-non-height-map env features (target and object features of every env frame), the height maps
-of every env frame, and any extra flat group (the privileged `critic` group). A learnable
-action token is appended; after the transformer (num_layers, num_heads, ff_dim: TokenHSI uses
-4 layers, 2 heads, FF 512 at d_model 64) the action token's output is the latent for the MLP
-head. All groups share one feature space, the coupling DETACH argues against.
+Policy (`TokenHSITrunk`): one token per input, all in one d_model space (TokenHSI's "unified
+token space", the coupling DETACH argues against):
+- a proprioception tokenizer on the newest `self_frames` frames of the `self` history
+  (TokenHSI's humanoid state is the current frame);
+- one task tokenizer per registered skill (`detach.skills.skill_names()`, the one-hot order),
+  reading that skill's task observation: the parts of the newest env frame its
+  `Skill.task_observation` names (`ObsSpec.env_fields`; e.g. follow: target, path, height
+  map);
+- a learnable action token.
+Tokenizers are MLPs `tokenizer_units` -> d_model with the activation after every layer, the
+last one included (TokenHSI's tokenizer MLPs). The transformer (`num_layers` post-norm layers,
+`num_heads`, feed-forward `ff_dim` with ReLU, no dropout, no positional embedding: TokenHSI's
+configuration) sees [action, self, task_1 .. task_K] with a key padding mask that hides the
+task tokens of inactive skills: only the action token, the self token and the current skill's
+task token are visible, so a skill's behaviour never depends on another skill's tokenizer.
+The action token's output is the latent of the action head (`adapter_units`, [1024, 512]).
+
+Value function (`TokenHSIValueTrunk`): TokenHSI's critic is a separate MLP
+(`critic_units`, [2048, 1024, 512]) on the full observation; here that is the `critic` group
+(the newest self and env frames, the one-hot, privileged extras). With `shared_trunk` the
+critic reads the actor's transformer instead (an option of this platform, not TokenHSI's).
+
+Adapter stage (`adapt_skills`, TokenHSI's skill adaptation, `detach.models.adapters`): see
+`TokenHSIModel` in `rsl_rl_models`.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import torch
 import torch.nn as nn
 from rsl_rl.modules import MLP
 
-from dataclasses import dataclass
-
-from detach.models.attention import TransformerEncoder
+from detach.models.attention import MultiHeadAttention
 from detach.models.layout import ObsLayout, TrunkModelCfg
+from detach.skills import canonical_name, skill_class, skill_names
+
+ACTIVE_SKILLS = "active_skills"
+"""Key of the [N, K] bool mask of the current skill(s) in the trunk's input dict; taken from the
+raw `task` one-hot (a normalised one-hot loses it when a skill was always active)."""
 
 
 @dataclass(frozen=True)
 class TokenHSICfg(TrunkModelCfg):
-    """The TokenHSI baseline (kind `tokenhsi`)."""
+    """TokenHSI (kind `tokenhsi`); defaults are TokenHSI's published network settings."""
 
     kind: str = "tokenhsi"
     d_model: int = 64
     num_layers: int = 4
-    num_heads: int = 8
-    ff_dim: int = 256
+    num_heads: int = 2
+    ff_dim: int = 512
     tokenizer_units: tuple[int, ...] = (256, 128)
+    self_frames: int = 1
+    """Newest frames of the `self` history the proprioception tokenizer reads (0 = all)."""
+    critic_units: tuple[int, ...] = (2048, 1024, 512)
+    """Hidden widths of the separate critic MLP (unused with `shared_trunk`)."""
+    adapt_skills: tuple[str, ...] = ()
+    """Adapter stage: these skills' task tokenizers and the head adapter train, everything else
+    of the policy (tokenizers, action token, transformer, head, input normaliser) is frozen
+    at the weights of the previous stage (`train.init_from`). Empty = ordinary training."""
+
+    def invalid(self) -> tuple[str, str] | None:
+        if self.self_frames < 0:
+            return "self_frames", f"expected >= 0 (0 = every frame), found {self.self_frames}"
+        try:
+            names = [canonical_name(s) for s in self.adapt_skills]
+        except ValueError as exc:
+            return "adapt_skills", str(exc)
+        if len(set(names)) != len(names):
+            return "adapt_skills", f"a skill is listed twice: {list(self.adapt_skills)}"
+        if names and self.shared_trunk:
+            return "adapt_skills", "the adapter stage freezes the transformer; use it without shared_trunk"
+        return None
+
+
+def task_observation_index(layout: ObsLayout, skill: str) -> torch.Tensor:
+    """Indices, within one env frame, of the parts the skill's task observation is made of."""
+    fields = layout.spec.env_fields()
+    frame = range(layout.spec.env_dim)
+    return torch.tensor([i for part in skill_class(skill).task_observation for i in frame[fields[part]]],
+                        dtype=torch.long)
+
+
+class TokenEncoder(nn.Module):
+    """TokenHSI's transformer: post-norm layers x = LN(x + MHA(x)), x = LN(x + FF(x)), ReLU
+    feed-forward, no dropout and no final norm; `visible` [N, L] is the key padding mask."""
+
+    def __init__(self, dim: int, heads: int, ff_dim: int, layers: int) -> None:
+        super().__init__()
+        self.attention = nn.ModuleList(
+            MultiHeadAttention(dim, heads, what="model.num_heads vs model.d_model") for _ in range(layers))
+        self.feed_forward = nn.ModuleList(
+            nn.Sequential(nn.Linear(dim, ff_dim), nn.ReLU(), nn.Linear(ff_dim, dim)) for _ in range(layers))
+        self.attention_norms = nn.ModuleList(nn.LayerNorm(dim) for _ in range(layers))
+        self.feed_forward_norms = nn.ModuleList(nn.LayerNorm(dim) for _ in range(layers))
+
+    def forward(self, x: torch.Tensor, visible: torch.Tensor) -> torch.Tensor:
+        for attend, feed, norm_a, norm_f in zip(self.attention, self.feed_forward, self.attention_norms,
+                                                self.feed_forward_norms):
+            x = norm_a(x + attend(x, visible=visible))
+            x = norm_f(x + feed(x))
+        return x
 
 
 class TokenHSITrunk(nn.Module):
-    """Named groups -> action-token feature [N, d_model]."""
+    """Named groups (+ `ACTIVE_SKILLS`) -> the action token's output [N, d_model]."""
 
     def __init__(self, layout: ObsLayout, cfg: TokenHSICfg) -> None:
         super().__init__()
         layout.require("self", "env", "task")
-        self.layout = layout
-        t_env, d_env = layout.history_shape("env")
-        self.cells = layout.spec.height_map_cells
+        skills = skill_names()
+        if layout.spec.num_skills != len(skills):
+            raise ValueError(f"TokenHSI has one task tokenizer per registered skill ({', '.join(skills)}); "
+                             f"the observation's task one-hot has {layout.spec.num_skills} entries")
+        steps, self_dim = layout.history_shape("self")
+        self.self_frames = steps if cfg.self_frames == 0 else min(cfg.self_frames, steps)
         d, units, act = cfg.d_model, cfg.tokenizer_units, cfg.activation
-        widths = {
-            "self": layout.dim("self"),
-            "task": layout.dim("task"),
-            "env_features": t_env * (d_env - self.cells),
-            "height_map": t_env * self.cells,
-        }
-        widths.update({g: layout.dim(g) for g in layout.extra_groups})
-        self.tokenizers = nn.ModuleDict(
-            {name: MLP(w, d, units, act) for name, w in widths.items() if w > 0}
-        )
-        self.action_token = nn.Parameter(0.02 * torch.randn(1, 1, d))
-        self.pos = nn.Parameter(0.02 * torch.randn(1, len(self.tokenizers) + 1, d))
-        self.transformer = TransformerEncoder(d, cfg.num_heads, cfg.ff_dim, cfg.num_layers)
+        self.self_tokenizer = MLP(self.self_frames * self_dim, d, units, act, last_activation=act)
+        self.task_tokenizers = nn.ModuleDict()
+        for skill in skills:
+            index = task_observation_index(layout, skill)
+            self.register_buffer(f"{skill}_index", index, persistent=False)
+            self.task_tokenizers[skill] = MLP(index.numel(), d, units, act, last_activation=act)
+        self.action_token = nn.Parameter(nn.init.trunc_normal_(torch.zeros(1, 1, d), std=0.02))
+        self.transformer = TokenEncoder(d, cfg.num_heads, cfg.ff_dim, cfg.num_layers)
         self.out_dim = d
 
-    def group_inputs(self, groups: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        """Flat input of each tokenizer; the env history is split into features and height maps."""
-        env = groups["env"]
-        n = env.shape[0]
-        split = env.shape[-1] - self.cells
-        inputs = {
-            "self": groups["self"].reshape(n, -1),
-            "task": groups["task"],
-            "env_features": env[..., :split].reshape(n, -1),
-            "height_map": env[..., split:].reshape(n, -1),
-        }
-        inputs.update({g: groups[g] for g in self.layout.extra_groups})
-        return inputs
+    def forward(self, groups: dict[str, torch.Tensor]) -> torch.Tensor:
+        if ACTIVE_SKILLS not in groups:
+            raise ValueError(f"TokenHSITrunk needs groups['{ACTIVE_SKILLS}'] (the raw one-hot > 0.5)")
+        own = groups["self"]
+        n = own.shape[0]
+        newest_env = groups["env"][:, -1]
+        tokens = [self.action_token.expand(n, -1, -1),
+                  self.self_tokenizer(own[:, -self.self_frames:].reshape(n, -1)).unsqueeze(1)]
+        for skill, tokenizer in self.task_tokenizers.items():
+            index = getattr(self, f"{skill}_index")
+            tokens.append(tokenizer(newest_env.index_select(-1, index)).unsqueeze(1))
+        always = torch.ones(n, 2, dtype=torch.bool, device=own.device)
+        visible = torch.cat([always, groups[ACTIVE_SKILLS]], dim=1)
+        return self.transformer(torch.cat(tokens, dim=1), visible)[:, 0]
+
+
+class TokenHSIValueTrunk(nn.Module):
+    """The critic's input: the `critic` group (the full newest observation) as it is."""
+
+    def __init__(self, layout: ObsLayout, cfg: TokenHSICfg) -> None:
+        super().__init__()
+        layout.require("critic")
+        self.out_dim = layout.dim("critic")
 
     def forward(self, groups: dict[str, torch.Tensor]) -> torch.Tensor:
-        inputs = self.group_inputs(groups)
-        tokens = [tok(inputs[name]).unsqueeze(1) for name, tok in self.tokenizers.items()]
-        n = tokens[0].shape[0]
-        tokens.append(self.action_token.expand(n, -1, -1))
-        h = self.transformer(torch.cat(tokens, dim=1) + self.pos)
-        return h[:, -1]
+        return groups["critic"]
