@@ -17,7 +17,8 @@ MODELS = sorted(p.stem for p in (ROOT / "configs" / "models").glob("*.yaml"))
 
 def test_every_task_and_model_is_shipped() -> None:
     assert {p.stem for p in TASKS} == {"follow", "carry", "climb", "sit", "lh1", "lh2", "lh3"}
-    assert set(MODELS) == {"detach", "ablation_a1", "ablation_a2", "tokenhsi", "cml", "mlp"}
+    assert set(MODELS) == {"detach", "ablation_a1", "ablation_a2", "tokenhsi", "cml", "mlp",
+                           "tokenhsi_adapt", "cml_incremental"}
 
 
 @pytest.mark.parametrize("task", TASKS, ids=lambda p: p.stem)
