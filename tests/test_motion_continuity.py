@@ -36,7 +36,7 @@ def test_the_knee_of_the_issue_stays_bent():
 def test_euler_solutions_follow_the_previous_frame_through_pi_over_2():
     """b runs 1.2 -> 1.9 rad (past pi/2): the principal decomposition jumps to the other branch
     (a + pi, pi - b, c + pi); the continuous one keeps a = 0.2, c = 0.3 and b rising."""
-    b = np.linspace(1.2, 1.9, 15)
+    b = np.sort(np.append(np.linspace(1.2, 1.9, 15), np.pi / 2))  # one frame exactly at gimbal lock
     mats = matrix_from_euler_xyz(np.full_like(b, 0.2), b, np.full_like(b, 0.3))
     ranges = np.array([[-1.0, 1.0], [-2.4, 2.4], [-1.0, 1.0]])
     angles = continuous_euler_xyz(mats, ranges)

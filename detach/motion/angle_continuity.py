@@ -55,29 +55,36 @@ def continuous_euler_xyz(mats: np.ndarray, ranges: np.ndarray) -> np.ndarray:
     Each rotation has two Euler solutions, (a, b, c) and (a + pi, pi - b, c + pi), each
     defined modulo 2 pi per angle. Frame 0 takes the solution (and equivalents) that leaves
     its ranges [3, 2] the least; every later frame the one nearest the previous frame's
-    angles (largest single-angle change). At gimbal lock (|b| = pi/2) only a +- c is defined:
-    c is kept from the previous frame and a follows from the rotation.
+    angles (smallest largest-single-angle change). The two solutions differ by the same
+    amounts between any two frames whichever one the previous frame took, so whether a frame
+    switches solution is decided for all frames at once (vectorised: 12,000 frames in
+    milliseconds); then each angle is unwrapped over time. At gimbal lock (|b| = pi/2) only
+    a +- c is defined: c is kept from the previous frame and a follows from the rotation.
     """
     mats = np.asarray(mats, dtype=np.float64)
+    ranges = np.asarray(ranges, dtype=np.float64)
+    lo, hi = ranges[:, 0], ranges[:, 1]
     base = euler_xyz_from_matrix(mats, gimbal_eps=_GIMBAL_COS)
-    lo, hi = np.asarray(ranges, dtype=np.float64)[:, 0], np.asarray(ranges, dtype=np.float64)[:, 1]
-    out = np.empty_like(base)
-    prev: np.ndarray | None = None
-    for f in range(len(base)):
-        a, b, c = base[f]
-        candidates = np.array([[a, b, c], [a + np.pi, np.pi - b, c + np.pi]])
-        if prev is None:
-            candidates = nearest_to_range(candidates, lo, hi)
-            excess = np.maximum(lo - candidates, 0.0) + np.maximum(candidates - hi, 0.0)
-            best = candidates[int(np.argmin(excess.sum(axis=1) + 1e-9 * np.abs(candidates).sum(axis=1)))]
-        else:
-            candidates = nearest_equivalent(candidates, prev)
-            best = candidates[int(np.argmin(np.abs(candidates - prev).max(axis=1)))]
-            if np.cos(best[1]) < _GIMBAL_COS:
-                best = _at_gimbal_lock(mats[f], best[1], prev[2], prev)
-        out[f] = best
-        prev = best
-    return out
+    other = base + np.array([np.pi, 0.0, np.pi])
+    other[:, 1] = np.pi - base[:, 1]
+    if len(base) == 0:
+        return base
+    first = nearest_to_range(np.stack([base[0], other[0]]), lo, hi)
+    excess = (np.maximum(lo - first, 0.0) + np.maximum(first - hi, 0.0)).sum(axis=1)
+    start = int(np.argmin(excess + 1e-9 * np.abs(first).sum(axis=1)))
+
+    def step(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return np.abs(nearest_equivalent(a[1:] - b[:-1], 0.0)).max(axis=1)
+
+    switch = step(base, other) < step(base, base)  # frame f takes the solution frame f-1 did not
+    label = (start + np.concatenate([[0], np.cumsum(switch)])) % 2
+    chosen = np.where(label[:, None] == 0, base, other)
+    chosen[0] = first[start]
+    lock = np.flatnonzero(np.cos(chosen[:, 1]) < _GIMBAL_COS)
+    for f in lock[lock > 0]:
+        chosen[f] = _at_gimbal_lock(mats[f], chosen[f, 1], chosen[f - 1, 2], chosen[f - 1])
+    out = np.unwrap(chosen, axis=0)
+    return out + (chosen[0] - out[0])
 
 
 def _at_gimbal_lock(mat: np.ndarray, b: float, c: float, prev: np.ndarray) -> np.ndarray:
