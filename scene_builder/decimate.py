@@ -29,6 +29,15 @@ default): the first pass faithful (7 bulged a UV sphere's poles by 20%, 3 kept i
 at ~1.4x the time), later passes only finish what it left above the cap. When they still stop
 short (fans of 256 thin triangles around a CAD cylinder do not collapse at all), vertex
 clustering reaches the cap."""
+PRECLUSTER = 4
+"""Meshes above this many times the cap are vertex-clustered to that many faces before quadric
+collapse, so the quadric passes see at most 4x the cap (their worst case, ~100 us a face, is
+then ~40 s at the default cap). Clustering merges everything within a cell, ~5 mm on a table at
+4x the default cap: thin panels survive it there, not at much coarser caps (a panel thinner
+than the cell becomes a sheet), hence the quadric passes for the last step."""
+STALLED = 0.9
+"""A pass that keeps more than this fraction of its input faces has stalled (on a 49k-face CAD
+table with fan-capped legs, three stalled passes took 12.7 s): go to clustering."""
 
 
 @dataclass(frozen=True)
@@ -38,7 +47,8 @@ class Decimation:
     faces_in: int
     faces_out: int
     method: str = "none"
-    """'none', 'quadric' (fast-simplification) or 'quadric+clustering' (when quadric stalled)."""
+    """The steps, e.g. 'quadric' (fast-simplification), 'clustering+quadric' (far above the
+    cap), 'quadric+clustering' (quadric stalled); 'none' under the cap."""
 
     @property
     def applied(self) -> bool:
@@ -49,34 +59,49 @@ class Decimation:
 
 
 def decimate(mesh: trimesh.Trimesh, max_faces: int, label: str) -> tuple[trimesh.Trimesh, Decimation]:
-    """`mesh` itself when it has at most `max_faces` faces, else a quadric-decimated copy with
-    about `max_faces` faces (never more). `label` names the source in error messages."""
+    """`mesh` itself when it has at most `max_faces` faces, else a decimated copy with at most
+    `max_faces` faces. `label` names the source in error messages.
+
+    Time is bounded by the cap, not the source: a mesh above PRECLUSTER x the cap is first
+    vertex-clustered to that many faces (O(n log n)), then quadric passes finish (their worst
+    case, thin panels tessellated finely, costs ~100 us per face and stalls at ~70%), then
+    clustering again if they stalled."""
     faces_in = len(mesh.faces)
     if max_faces < 4:
         raise AssetError(f"{label}: face cap must be at least 4, got {max_faces}")
     if faces_in <= max_faces:
         return mesh, Decimation(faces_in, faces_in)
-    out, method = mesh, "quadric"
+    out, steps = mesh, []
+    if faces_in > PRECLUSTER * max_faces:
+        out = _cluster(out, PRECLUSTER * max_faces)
+        steps.append("clustering")
+    if len(out.faces) > max_faces:
+        steps.append("quadric")
     for aggression in AGGRESSION:  # one pass can stop short of the target (5.2M -> 129k for a 100k cap)
+        before = len(out.faces)
+        if before <= max_faces:
+            break
         try:
             out = out.simplify_quadric_decimation(face_count=max_faces, aggression=aggression)
         except Exception as e:  # the C++ core reports failures as assorted exceptions
             raise AssetError(f"{label}: decimation from {faces_in} to {max_faces} faces failed "
                              f"({type(e).__name__}: {e})") from None
-        if len(out.faces) <= max_faces:
+        if len(out.faces) > STALLED * before:
             break
-    else:  # quadric collapse stalled
-        out, method = _cluster(out, max_faces), "quadric+clustering"
+    if len(out.faces) > max_faces:  # quadric collapse stalled: another pass would too, slowly
+        out = _cluster(out, max_faces)
+        steps.append("clustering")
     if len(out.faces) == 0:
         raise AssetError(f"{label}: decimation from {faces_in} to {max_faces} faces left no faces")
-    return out, Decimation(faces_in, len(out.faces), method)
+    return out, Decimation(faces_in, len(out.faces), "+".join(steps))
 
 
 def _cluster(mesh: trimesh.Trimesh, max_faces: int) -> trimesh.Trimesh:
     """Vertex clustering down to at most `max_faces`: vertices in one cell of a grid merge,
-    collapsed faces go. Coarse but guaranteed, for when quadric collapse stalls; the merging is
-    trimesh's (`merge_vertices` with 0 digits on coordinates divided by the cell size), only the
-    bisection on the cell size (16 steps between 1e-4 and 1 times the mesh's scale) is ours."""
+    collapsed faces go. Coarse but fast and guaranteed; the merging is trimesh's
+    (`merge_vertices` with 0 digits on coordinates divided by the cell size), only the choice
+    of the cell is ours: from the surface area (a surface sampled every h metres has ~2 A / h^2
+    triangles), then grown until the count is under the cap (a few steps)."""
 
     def clustered(cell: float) -> trimesh.Trimesh:
         out = trimesh.Trimesh(np.asarray(mesh.vertices) / cell, np.asarray(mesh.faces), process=False)
@@ -87,13 +112,10 @@ def _cluster(mesh: trimesh.Trimesh, max_faces: int) -> trimesh.Trimesh:
         out.vertices = out.vertices * cell
         return out
 
-    lo, hi = np.log(float(mesh.scale) * 1e-4), np.log(float(mesh.scale))
-    best = clustered(float(np.exp(hi)))
-    for _ in range(16):
-        mid = 0.5 * (lo + hi)
-        out = clustered(float(np.exp(mid)))
-        if len(out.faces) <= max_faces:
-            best, hi = out, mid
-        else:
-            lo = mid
-    return best if len(best.faces) > 0 else mesh.convex_hull
+    cell = max(float(np.sqrt(2.0 * float(mesh.area) / max_faces)), float(mesh.scale) * 1e-6)
+    for _ in range(30):
+        out = clustered(cell)
+        if 0 < len(out.faces) <= max_faces:
+            return out
+        cell *= max(1.1, float(np.sqrt(len(out.faces) / max_faces))) if len(out.faces) else 0.5
+    return mesh.convex_hull  # not reached in practice: the cell grows at least 10% a step

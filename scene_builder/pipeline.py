@@ -244,7 +244,8 @@ def process(p: Planned, options: BuildOptions, progress: Progress | None = None)
         "collision": {"method": report.method, "hull_count": len(hulls), "files": hull_files,
                       "hull_vertices": [len(h.vertices) for h in hulls], **report.as_dict()},
         "mesh": {"vertices": len(mesh.vertices), "faces": len(mesh.faces), "watertight": bool(mesh.is_watertight),
-                 "source_faces": decimation.faces_in, "decimated": decimation.applied},
+                 "source_faces": decimation.faces_in, "decimated": decimation.applied,
+                 "decimation": decimation.method},
         "vis": {"file": "vis/mesh.glb", "frame": "asset frame (Z up, metres), not glTF's usual Y up"},
         "warnings": warnings,
     }
