@@ -49,6 +49,24 @@ def test_auto_map_imports_every_family(tmp_path, capsys, family, variant):
     np.testing.assert_allclose(clip.root_pos[:, 1], 0.0, atol=1e-6)
 
 
+def test_hips_under_a_static_reference_root(tmp_path, capsys):
+    """Some exporters put a still `Reference` ROOT above Hips and the motion on Hips' own
+    position channels: the pelvis follows Hips, not the file's ROOT."""
+    path = write_bvh(tmp_path / "plain.bvh", "mixamo", ROOT_CM, KNEE_DEG)
+    lines = path.read_text().splitlines()
+    start = lines.index("MOTION")
+    header = ["HIERARCHY", "ROOT Reference", "{", "  OFFSET 0 0 0",
+              "  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation",
+              lines[1].replace("ROOT", "JOINT"), *lines[2:start], "}"]
+    frames = ["0 0 0 0 0 0 " + line for line in lines[start + 3:]]
+    wrapped = tmp_path / "wrapped.bvh"
+    wrapped.write_text("\n".join(header + lines[start:start + 3] + frames) + "\n")
+    assert main(["import", str(path), str(wrapped), "--out", str(tmp_path)]) == 0
+    plain, moved = load_clip(tmp_path / "plain.npz"), load_clip(tmp_path / "wrapped.npz")
+    np.testing.assert_allclose(moved.root_pos, plain.root_pos, atol=1e-6)
+    np.testing.assert_allclose(moved.dof_pos, plain.dof_pos, atol=1e-6)
+
+
 def test_names_match_behind_a_namespace_prefix():
     names = ["mixamorig:Hips", "mixamorig:Spine", "Other:Head"]
     assert resolve(("Hips",), names) == "mixamorig:Hips" and resolve(("Head",), names) == "Other:Head"

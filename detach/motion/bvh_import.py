@@ -5,8 +5,8 @@ OFFSET is the joint's position in its parent's frame; a frame's rotation channel
 joint's rotation relative to that rest frame, composed intrinsically in channel order
 ("Zrotation Xrotation Yrotation" -> Rz Rx Ry). So the world rotation of a joint is the product
 of local rotations from the root, and the rest pose is all-identity. Position channels replace
-the matching OFFSET component (the root's give its per-frame position; those of other joints
-are not used: retargeting needs rotations and the root path only).
+the matching OFFSET component: the root's give its per-frame position, those of other joints
+are kept per frame in `joint_pos` (used for the path of a map root below the file's ROOT).
 
 Parsed here with numpy rather than with bvhio, which implements the same semantics (the tests
 compare both on every test file) but builds a Python object per joint and frame: 9.7 s for a
@@ -17,8 +17,9 @@ count and values per frame); every problem is a `BvhError` with one line naming 
 
 from __future__ import annotations
 
+import io
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -50,6 +51,9 @@ class BvhData:
     """[F, J, 4] wxyz rotation of each joint relative to its (identity) rest frame."""
     root_pos: np.ndarray
     """[F, 3] root position, file units and axes."""
+    joint_pos: dict[int, np.ndarray] = field(default_factory=dict)
+    """[F, 3] per-frame offsets of the non-root joints that have position channels (the OFFSET
+    with those components replaced), e.g. Hips under a static `Reference` root."""
 
     @property
     def num_frames(self) -> int:
@@ -77,19 +81,17 @@ class BvhData:
 def read_bvh(path: str | os.PathLike) -> BvhData:
     """Parse `path`; BvhError (one line naming the file) if it is not a valid BVH."""
     path = Path(path)
-    lines = _precheck(path)
-    m = next(i for i, t in enumerate(lines) if t[0] == "MOTION")
-    names, parents, offsets, channels = _hierarchy(path, lines[1:m])
+    sections = _sections(path)
+    names, parents, offsets, channels = _hierarchy(path, sections.header)
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
         raise BvhError(f"{path}: duplicate joint name(s) {', '.join(dup)}")
-    frames = int(lines[m + 1][1])
+    frames = sections.frames
     try:
-        frame_time = float(lines[m + 2][2])
-        values = np.array([v for t in lines[m + 3:m + 3 + frames] for v in t], dtype=np.float64)
-    except (IndexError, ValueError):
-        raise BvhError(f"{path}: Frame Time and frame values must be numbers") from None
-    values = values.reshape(frames, -1)
+        frame_time = float(sections.frame_time)
+    except ValueError:
+        raise BvhError(f"{path}: Frame Time must be a number, got {sections.frame_time!r}") from None
+    values = _values(path, sections)
     if not np.all(np.isfinite(values)):
         raise BvhError(f"{path}: motion data contains NaN or inf")
     if not frame_time > 0:
@@ -97,6 +99,7 @@ def read_bvh(path: str | os.PathLike) -> BvhData:
     quat = np.empty((frames, len(names), 4))
     root_pos = np.tile(offsets[0], (frames, 1))
     column = 0
+    joint_pos: dict[int, np.ndarray] = {}
     for j, chans in enumerate(channels):
         q = np.tile([1.0, 0.0, 0.0, 0.0], (frames, 1))
         for c in chans:
@@ -104,11 +107,13 @@ def read_bvh(path: str | os.PathLike) -> BvhData:
                 axis = np.zeros(3)
                 axis[_AXIS[c]] = 1.0
                 q = quat_mul(q, quat_from_axis_angle(axis, np.deg2rad(values[:, column])))
-            elif c in _POSITION and j == 0:
+            elif j == 0:
                 root_pos[:, _POSITION[c]] = values[:, column]
+            else:
+                joint_pos.setdefault(j, np.tile(offsets[j], (frames, 1)))[:, _POSITION[c]] = values[:, column]
             column += 1
         quat[:, j] = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    return BvhData(str(path), names, parents, np.array(offsets), frame_time, quat, root_pos)
+    return BvhData(str(path), names, parents, np.array(offsets), frame_time, quat, root_pos, joint_pos)
 
 
 def _hierarchy(path: Path, lines: list[list[str]]) -> tuple[list[str], list[int], np.ndarray, list[list[str]]]:
@@ -169,44 +174,83 @@ def _hierarchy(path: Path, lines: list[list[str]]) -> tuple[list[str], list[int]
     return names, parents, np.array(offsets, dtype=np.float64), channels
 
 
-def _precheck(path: Path) -> list[list[str]]:
-    """Structural checks before parsing; returns the file's non-empty lines as token lists."""
+@dataclass
+class _Sections:
+    """A BVH file split into its parts, after the structural checks."""
+
+    header: list[list[str]]
+    """Token lists of the non-empty lines before MOTION ("HIERARCHY" excluded)."""
+    frames: int
+    frame_time: str
+    data: list[str]
+    """The `frames` non-empty lines of values."""
+    channels: int
+
+
+def _read_text(path: Path, kind: str = "BVH") -> str:
+    """The file's text (UTF-8, else Latin-1: some exporters write accented names)."""
     if not path.is_file():
         raise BvhError(f"{path}: no such file")
+    raw = path.read_bytes()
+    if b"\0" in raw[:4096]:
+        raise BvhError(f"{path}: not a {kind} text file (binary data)")
     try:
-        text = path.read_text(encoding="utf-8", errors="strict")
-    except (UnicodeDecodeError, OSError) as e:
-        raise BvhError(f"{path}: not a BVH text file ({type(e).__name__})") from None
-    lines = [ln.split() for ln in text.splitlines()]
-    lines = [t for t in lines if t]
-    if not lines or lines[0] != ["HIERARCHY"]:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError:
+        return raw.decode("latin-1")
+
+
+def _sections(path: Path) -> _Sections:
+    """Structural checks before parsing (header, balanced braces, MOTION, frame count, values
+    per frame), so that a truncated or malformed file is one line naming it."""
+    lines = [ln for ln in _read_text(path).splitlines() if ln.strip()]
+    if not lines or lines[0].split() != ["HIERARCHY"]:
         raise BvhError(f"{path}: not a BVH file (expected 'HIERARCHY' on the first line)")
     try:
-        m = next(i for i, t in enumerate(lines) if t[0] == "MOTION")
+        m = next(i for i, ln in enumerate(lines) if ln.split()[0] == "MOTION")
     except StopIteration:
         raise BvhError(f"{path}: no MOTION section") from None
-    head = [tok for t in lines[:m] for tok in t]
+    header = [ln.split() for ln in lines[1:m]]
+    head = [tok for t in header for tok in t]
     if head.count("{") != head.count("}") or head.count("{") == 0:
         raise BvhError(f"{path}: unbalanced braces in the HIERARCHY section")
     channels = 0
-    for t in lines[:m]:
+    for t in header:
         if t[0] == "CHANNELS":
             try:
                 channels += int(t[1])
             except (IndexError, ValueError):
                 raise BvhError(f"{path}: bad CHANNELS line {' '.join(t)!r}") from None
-    if len(lines) < m + 3 or lines[m + 1][0] != "Frames:" or lines[m + 2][:2] != ["Frame", "Time:"]:
+    tail = [ln.split() for ln in lines[m + 1:m + 3]]
+    if len(tail) < 2 or tail[0][:1] != ["Frames:"] or tail[1][:2] != ["Frame", "Time:"] or len(tail[1]) < 3:
         raise BvhError(f"{path}: MOTION must be followed by 'Frames: N' and 'Frame Time: T'")
     try:
-        frames = int(lines[m + 1][1])
+        frames = int(tail[0][1])
     except (IndexError, ValueError):
-        raise BvhError(f"{path}: bad frame count {' '.join(lines[m + 1])!r}") from None
+        raise BvhError(f"{path}: bad frame count {' '.join(tail[0])!r}") from None
     if frames < 1:
         raise BvhError(f"{path}: no frames (Frames: {frames})")
-    data = lines[m + 3:]
+    data = lines[m + 3:m + 3 + frames]
     if len(data) < frames:
         raise BvhError(f"{path}: Frames: {frames} but only {len(data)} frame lines (truncated file?)")
-    for k, t in enumerate(data[:frames]):
-        if len(t) != channels:
-            raise BvhError(f"{path}: frame {k} has {len(t)} values, expected {channels} (one per channel)")
-    return lines
+    return _Sections(header, frames, tail[1][2], data, channels)
+
+
+def _values(path: Path, sections: _Sections) -> np.ndarray:
+    """[frames, channels] motion values (numpy's C parser: memory ~ the array, not the text)."""
+    try:
+        values = np.loadtxt(io.StringIO("\n".join(sections.data)), dtype=np.float64, ndmin=2)
+    except ValueError:
+        values = None
+    if values is None or values.shape != (sections.frames, sections.channels):
+        for k, line in enumerate(sections.data):
+            tokens = line.split()
+            if len(tokens) != sections.channels:
+                raise BvhError(f"{path}: frame {k} has {len(tokens)} values, expected {sections.channels} "
+                               "(one per channel)")
+            try:
+                [float(t) for t in tokens]
+            except ValueError:
+                raise BvhError(f"{path}: frame {k}: values must be numbers") from None
+        raise BvhError(f"{path}: unreadable frame values")
+    return values

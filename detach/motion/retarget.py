@@ -37,7 +37,8 @@ from detach.motion.clip import MotionClip, clip_from_arrays
 from detach.motion.joint_map import (MAPS_DIR, BoundMap, JointMap, RetargetError, available_maps, bind,
                                      child_bodies, choose_map, load_map)
 from detach.motion.kinematics import humanoid_fk
-from detach.motion.rotations import min_rotation, quat_conj, quat_continuous, quat_mul, quat_to_matrix, slerp, twist_angle
+from detach.motion.rotations import (min_rotation, quat_conj, quat_continuous, quat_mul, quat_rotate, quat_to_matrix,
+                                     slerp, twist_angle)
 
 __all__ = ["MAPS_DIR", "RetargetError", "available_maps", "import_bvh", "load_map", "retarget", "source_axes",
            "source_scale"]
@@ -115,8 +116,8 @@ def retarget(bvh: BvhData, jmap: JointMap | None = None, skill: str = "walk", na
     if not scale > 0:
         raise RetargetError(f"{where}: scale must be > 0, got {scale}")
     c = source_axes(bvh, bound)
-    g = bvh.global_quat()  # [F, J, 4] file axes
-    g = np.concatenate((g[..., :1], g[..., 1:] @ c.T), axis=-1)  # C R C^T as a quaternion
+    g_file = bvh.global_quat()  # [F, J, 4] file axes
+    g = np.concatenate((g_file[..., :1], g_file[..., 1:] @ c.T), axis=-1)  # C R C^T as a quaternion
     rest = bvh.rest_positions() @ c.T
     ours_rest = humanoid_fk().rest_body_pos()
     bidx = {n: i for i, n in enumerate(BODY_NAMES)}
@@ -145,7 +146,7 @@ def retarget(bvh: BvhData, jmap: JointMap | None = None, skill: str = "walk", na
     dof = np.concatenate([angles[grp.name] for grp in JOINT_GROUPS], axis=1)  # DOF_NAMES order
     dof, report = clip_to_ranges(dof, dof_ranges(), tuple(DOF_NAMES))
     root_quat = quat_continuous(world["pelvis"])
-    root_pos = (bvh.root_pos @ c.T) * scale
+    root_pos = (_joint_path(bvh, bvh.index(bound.root), g_file) @ c.T) * scale
     src_fps = _snap_fps(1.0 / bvh.frame_time)
     if fps is not None and abs(fps - src_fps) > 1e-9:
         root_pos, root_quat, dof = _resample(root_pos, root_quat, dof, src_fps, fps)
@@ -158,6 +159,21 @@ def retarget(bvh: BvhData, jmap: JointMap | None = None, skill: str = "walk", na
                                   "source_fps": src_fps, "clipped_fraction": report.fraction,
                                   "clipping": report.as_dict(), "synthetic": False})
     return clip, report.fraction
+
+
+def _joint_path(bvh: BvhData, joint: int, global_quat: np.ndarray) -> np.ndarray:
+    """[F, 3] world positions (file units and axes) of `joint`: the file root's positions, plus
+    the offsets down the chain (per frame where the joint has position channels) when the
+    map's root is below the file's ROOT (e.g. `Hips` under a `Reference` root)."""
+    chain = []
+    while joint > 0:
+        chain.append(joint)
+        joint = bvh.parents[joint]
+    pos = bvh.root_pos.copy()
+    for j in reversed(chain):
+        offset = bvh.joint_pos.get(j, np.broadcast_to(bvh.offsets[j], pos.shape))
+        pos += quat_rotate(global_quat[:, bvh.parents[j]], offset)
+    return pos
 
 
 def _angles(local: np.ndarray, grp) -> np.ndarray:
