@@ -166,14 +166,16 @@ def load_mesh(path: Path) -> trimesh.Trimesh:
         raise AssetError(f"{path}: not a readable mesh ({type(e).__name__}: {first_line})") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise AssetError(f"{path}: mesh has no faces (empty, or not a mesh)")
-    v = np.asarray(mesh.vertices, dtype=np.float64)
-    used = np.unique(np.asarray(mesh.faces))
+    v, faces = np.array(mesh.vertices, dtype=np.float64), np.array(mesh.faces)
+    del mesh  # the parser's object and its caches: ~5x the arrays on a multi-million-face file
+    used = np.unique(faces)
     if used.max() >= len(v):
         raise AssetError(f"{path}: faces index missing vertices")
     bad = ~np.isfinite(v[used]).all(axis=1)
+    del used
     if bad.any():
         raise AssetError(f"{path}: {int(bad.sum())} vertices have NaN/inf coordinates")
-    mesh = trimesh.Trimesh(v, mesh.faces, process=True)  # merge UV-seam duplicates for CoACD
+    mesh = trimesh.Trimesh(v, faces, process=True)  # merge UV-seam duplicates for CoACD
     extents = mesh.extents
     if extents.min() <= FLAT_RATIO * extents.max():
         axis = "xyz"[int(extents.argmin())]

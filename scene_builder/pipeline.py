@@ -203,8 +203,11 @@ def process(p: Planned, options: BuildOptions, progress: Progress | None = None)
         warnings += orientation.warnings
     scale = req.scale if (req.scale is not None or req.size is not None) else default_scale
     transform = frame_transform(raw, up=up, yaw=req.yaw, scale=scale, size=req.size, flip=flip)
-    full_bounds = trimesh.Trimesh(transform.apply(raw.vertices), np.asarray(raw.faces), process=False).bounds
+    used = transform.apply(np.asarray(raw.vertices)[raw.referenced_vertices])  # what trimesh's bounds use
+    full_bounds = np.array([used.min(axis=0), used.max(axis=0)])
+    del raw, used  # from here on only the decimated copy: memory follows the cap
     mesh = trimesh.Trimesh(transform.apply(raw_work.vertices), np.asarray(raw_work.faces), process=False)
+    del raw_work
     bbox = np.asarray(full_bounds[1] - full_bounds[0], dtype=np.float64)
     if imported and req.size is None:
         warnings += [w for w in [size_warning(bbox, p.label, scale)] if w]
