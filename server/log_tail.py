@@ -103,6 +103,8 @@ class LogTail:
         self.inode: int | None = None
         self.channels: dict[int, str] = {}
         self.metrics: list[dict[str, Any]] = []
+        self.metric_times: list[float] = []
+        """Log time of each /metrics message (Unix seconds; the wall-time axis of the curves)."""
         self.scene: dict[str, Any] | None = None
         self.chunks: list[ChunkRef] = []
         self.complete = False
@@ -277,7 +279,7 @@ class LogTail:
     def _message(self, records: bytes, at: int) -> None:
         """Parse one /metrics or /scene message record at `at` (others are ignored)."""
         _op, length = _REC.unpack_from(records, at)
-        (channel,) = struct.unpack_from("<H", records, at + _REC.size)
+        channel, _sequence, log_time, _publish = _MSG_HEAD.unpack_from(records, at + _REC.size)
         topic = self.channels.get(channel)
         if topic not in (METRICS, SCENE):
             return
@@ -289,6 +291,7 @@ class LogTail:
             return
         if topic == METRICS:
             self.metrics.append(msg)
+            self.metric_times.append(log_time / 1e9)
         else:  # the latest: an evaluation appended to the log records its scene again
             self.scene = msg
 
@@ -393,3 +396,20 @@ class LogTail:
                         if msg is not None:
                             frames.append(msg)
             return episode_from_frames(number, frames) if frames else None
+
+
+def closed_cleanly(path: Path) -> bool | None:
+    """Whether a log.mcap starts and ends with the MCAP magic (the writer closed it), from
+    16 bytes; None if it does not even start like an MCAP file. The run index uses this to
+    check finished runs without reading their logs (a full scan says why a log is broken)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(len(MAGIC))
+            if head != MAGIC:
+                return None
+            if f.seek(0, os.SEEK_END) < 2 * len(MAGIC) + _REC.size:
+                return False  # the writer has only just started
+            f.seek(-len(MAGIC), os.SEEK_END)
+            return f.read(len(MAGIC)) == MAGIC
+    except OSError:
+        return None

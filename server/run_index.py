@@ -1,10 +1,21 @@
 """The runs/ folder as the dashboard sees it: one cached reader per run folder.
 
-Each refresh stats every file of every run and re-parses only files whose (size, mtime)
-changed; log.mcap is tailed incrementally (server.log_tail). Whatever is wrong with a run
-(missing or corrupt config.yaml / status.json / eval*.json, a corrupt or truncated log)
-becomes a one-line reason on that run and never an exception, so one broken folder cannot
-take the dashboard down. The dashboard reads run folders only, never a training process.
+Each refresh stats the small files of a run and re-parses only those whose (size, mtime)
+changed. log.mcap is not read at all until a browser opens the run (curves, replay): the
+index only stats it, and checks a finished run's log from its first and last bytes (a full
+scan runs only to say why a log is broken). Opened logs are tailed incrementally
+(server.log_tail) and dropped again when nobody shows them, so memory follows what is on
+screen, not the size of runs/.
+
+With `settled_per_refresh`, runs that can no longer change by themselves (finished, failed,
+interrupted) are re-checked a few per refresh, round-robin, while new and live runs are
+checked on every refresh: a poll costs the same with 200 runs as with 20, and a finished run
+that changes (an `--eval` appends to it, a `--resume` restarts it) shows within
+len(runs) / settled_per_refresh polls.
+
+Whatever is wrong with a run (missing or corrupt config.yaml / status.json / eval*.json, a
+corrupt or truncated log) becomes a one-line reason on that run and never an exception, so
+one broken folder cannot take the dashboard down. The dashboard reads run folders only.
 """
 
 from __future__ import annotations
@@ -20,32 +31,39 @@ import numpy as np
 import yaml
 
 from detach.run_contract import (
-    CONFIG_FILE, EVAL_FILE, LIVE_STATES, LOG_FILE, STATUS_FILE, EvalResult, Status, is_eval_file,
+    CONFIG_FILE, EVAL_FILE, LIVE_STATES, LOG_FILE, RUN_MARKERS, STATUS_FILE, STDOUT_FILE,
+    EvalResult, Status, is_eval_file,
 )
-from detach.runs.folder import find_runs
-from server.log_tail import LogTail
+from server.log_tail import LogTail, closed_cleanly
+
+_YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
 @dataclass
 class RunInfo:
-    """What the runs table shows about one run folder."""
+    """What the runs table shows about one run folder (equal infos = nothing to redraw)."""
 
     run_id: str
     path: Path
     task: str = "?"
     model: str = "?"
     seed: int | None = None
+    cell: str | None = None
+    """The sweep cell (status.json), e.g. `table1/lh1/detach/s0`."""
     state: str = "unknown"
     iteration: int | None = None
     lh_sr: float | None = None
     """eval.json's `lh_success.rate` (evaluation on the task the run trained on)."""
+    started: float | None = None
     updated: float | None = None
     error: str | None = None
     """status.json's error of a failed or interrupted run."""
+    samples_per_iteration: int | None = None
+    """Environment steps per training iteration (sim.num_envs x train.num_steps_per_env)."""
     problems: tuple[str, ...] = ()
     """Reasons the folder cannot be read completely; any reason makes it 'unreadable'."""
-    log_version: int = 0
-    """Changes whenever new log messages were read (metrics, scene or frames)."""
+    log_version: tuple = ()
+    """(size, mtime) of log.mcap; () without a log. Changes whenever the log grows."""
     eval_version: tuple = ()
     """Changes whenever an eval*.json file changed."""
 
@@ -60,6 +78,10 @@ class RunInfo:
     @property
     def live(self) -> bool:
         return self.state in LIVE_STATES
+
+    @property
+    def has_log(self) -> bool:
+        return bool(self.log_version) and self.log_version[0] > 0
 
 
 @dataclass
@@ -85,14 +107,18 @@ def _parse_status(text: str) -> Status:
 def _parse_config(text: str) -> dict[str, Any]:
     """Only the keys the dashboard shows; deliberately lenient so that runs written by an
     older schema still list (the strict loader is for running, not for browsing)."""
-    data = yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
+    data = yaml.load(text, Loader=_YAML_LOADER)
     if not isinstance(data, dict):
         raise ValueError("expected a mapping")
     missing = [k for k in ("task_name", "model_name", "seed") if k not in data]
     if missing:
         raise ValueError(f"missing keys {', '.join(missing)}")
+    sim, train = data.get("sim"), data.get("train")
+    envs = sim.get("num_envs") if isinstance(sim, dict) else None
+    steps = train.get("num_steps_per_env") if isinstance(train, dict) else None
+    samples = envs * steps if isinstance(envs, int) and isinstance(steps, int) else None
     return {"task": str(data["task_name"]), "model": str(data["model_name"]),
-            "seed": data["seed"]}
+            "seed": data["seed"], "samples_per_iteration": samples}
 
 
 def _parse_eval(text: str) -> EvalResult:
@@ -102,21 +128,25 @@ def _parse_eval(text: str) -> EvalResult:
 @dataclass
 class MetricSeries:
     """A run's /metrics as columns: x = iteration (the last message of a repeated
-    iteration wins, as after a resume), one float array per numeric key."""
+    iteration wins, as after a resume), one float array per numeric key (NaN where an
+    iteration lacks the key), and each iteration's log time (Unix seconds)."""
 
     iterations: np.ndarray
     columns: dict[str, np.ndarray] = field(default_factory=dict)
+    times: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 class RunReader:
-    """Cached view of one run folder."""
+    """Cached view of one run folder; its log is opened only on demand."""
 
     def __init__(self, path: Path) -> None:
         self.path = path
-        self.log = LogTail(path / LOG_FILE)
         self._files: dict[str, _Cached] = {}
+        self._tail: LogTail | None = None
         self._series: tuple[int, MetricSeries] | None = None
+        self._log_check: tuple[tuple[int, int] | None, list[str]] = (None, [])
         self.evals: dict[str, EvalResult] = {}
+        self._lock = threading.RLock()
 
     def _read(self, name: str, parse: Callable[[str], Any]) -> _Cached:
         entry = self._files.setdefault(name, _Cached())
@@ -138,25 +168,28 @@ class RunReader:
         return self._files[name].parses if name in self._files else 0
 
     def read(self) -> RunInfo:
-        info = RunInfo(self.path.name, self.path)
-        problems: list[str] = []
-        config = self._read(CONFIG_FILE, _parse_config)
-        if config.value:
-            info.task, info.model, info.seed = (config.value["task"], config.value["model"],
-                                                config.value["seed"])
-        else:
-            problems.append(config.problem or f"{CONFIG_FILE} unreadable")
-        status = self._read(STATUS_FILE, _parse_status)
-        if status.value:
-            s = status.value
-            info.state, info.updated, info.error = s.state, s.updated, s.error
-            info.iteration = s.iteration
-        else:
-            problems.append(status.problem or f"{STATUS_FILE} unreadable")
-        problems += self._read_evals(info)
-        problems += self._read_log(info)
-        info.problems = tuple(problems)
-        return info
+        with self._lock:
+            info = RunInfo(self.path.name, self.path)
+            problems: list[str] = []
+            config = self._read(CONFIG_FILE, _parse_config)
+            if config.value:
+                c = config.value
+                info.task, info.model, info.seed = c["task"], c["model"], c["seed"]
+                info.samples_per_iteration = c["samples_per_iteration"]
+            else:
+                problems.append(config.problem or f"{CONFIG_FILE} unreadable")
+            status = self._read(STATUS_FILE, _parse_status)
+            if status.value:
+                s = status.value
+                info.state, info.updated, info.started, info.error = (s.state, s.updated,
+                                                                      s.started, s.error)
+                info.iteration, info.cell = s.iteration, s.cell
+            else:
+                problems.append(status.problem or f"{STATUS_FILE} unreadable")
+            problems += self._read_evals(info)
+            problems += self._read_log(info)
+            info.problems = tuple(problems)
+            return info
 
     def _read_evals(self, info: RunInfo) -> list[str]:
         problems, versions = [], []
@@ -179,12 +212,38 @@ class RunReader:
         return problems
 
     def _read_log(self, info: RunInfo) -> list[str]:
-        log = self.log
+        key = _stat_key(self.path / LOG_FILE)
+        info.log_version = key or ()
+        if key is None or key[0] == 0:
+            return []
+        if self._tail is not None:  # open in a browser: read what was appended
+            return self._tail_problems(self._tail, info)
+        if info.live:
+            return []  # still being written: its end is not a footer yet
+        checked_key, problems = self._log_check
+        if checked_key != key:
+            problems = self._check_closed_log(info)
+            self._log_check = (key, problems)
+        return problems
+
+    def _check_closed_log(self, info: RunInfo) -> list[str]:
+        """A finished run's log must start and end with the MCAP magic; if it does not,
+        scan it once to say what is wrong (a scan of a healthy log is never needed)."""
+        if closed_cleanly(self.path / LOG_FILE):
+            return []
+        tail = LogTail(self.path / LOG_FILE)
         try:
-            log.refresh()
+            tail.refresh()
         except Exception as exc:  # noqa: BLE001 - a reader bug must not hide the run
             return [f"{LOG_FILE} unreadable ({_short(exc)})"]
-        info.log_version = log.version
+        return self._tail_problems(tail, info)
+
+    @staticmethod
+    def _tail_problems(log: LogTail, info: RunInfo) -> list[str]:
+        try:
+            log.refresh()
+        except Exception as exc:  # noqa: BLE001
+            return [f"{LOG_FILE} unreadable ({_short(exc)})"]
         if log.problem:
             return [log.problem]
         if log.size and not info.live and not log.complete:
@@ -194,29 +253,69 @@ class RunReader:
                         f"are a partial record ({read} before the cut)"]
             return [f"{LOG_FILE} truncated: no MCAP footer although the run is {info.state} "
                     f"({read})"]
-        if log.metrics and info.iteration is None:
-            info.iteration = int(log.metrics[-1].get("iteration", 0))
         return []
+
+    # --- the log, on demand ---------------------------------------------------------------
+    @property
+    def log(self) -> LogTail:
+        """The tailed log (opened on first use, brought up to date on every access)."""
+        with self._lock:
+            if self._tail is None:
+                self._tail = LogTail(self.path / LOG_FILE)
+            try:
+                self._tail.refresh()
+            except Exception:  # noqa: BLE001 - LogTail.problem / RunInfo.problems say why
+                pass
+            return self._tail
+
+    @property
+    def log_open(self) -> bool:
+        return self._tail is not None
+
+    def close_log(self) -> None:
+        """Forget the tailed log (nobody shows this run any more); reopened on demand."""
+        with self._lock:
+            self._tail, self._series = None, None
 
     def series(self) -> MetricSeries:
         """The metrics as columns; rebuilt only when new messages arrived."""
-        n = len(self.log.metrics)
-        if self._series is not None and self._series[0] == n:
-            return self._series[1]
-        rows: dict[int, dict[str, Any]] = {}
-        for m in self.log.metrics:
-            it = m.get("iteration")
-            if isinstance(it, (int, float)):
-                rows[int(it)] = m
-        its = sorted(rows)
-        keys = sorted({k for m in rows.values() for k, v in m.items()
-                       if k != "iteration" and isinstance(v, (int, float))
-                       and not isinstance(v, bool)})
-        columns = {k: np.array([_num(rows[i].get(k)) for i in its], dtype=np.float64)
-                   for k in keys}
-        result = MetricSeries(np.array(its, dtype=np.float64), columns)
-        self._series = (n, result)
-        return result
+        with self._lock:
+            log = self.log
+            n = len(log.metrics)
+            if self._series is not None and self._series[0] == n:
+                return self._series[1]
+            rows: dict[int, tuple[dict[str, Any], float]] = {}
+            for m, t in zip(log.metrics, log.metric_times):
+                it = m.get("iteration")
+                if isinstance(it, (int, float)) and not isinstance(it, bool):
+                    rows[int(it)] = (m, t)
+            its = sorted(rows)
+            keys = sorted({k for m, _t in rows.values() for k, v in m.items()
+                           if k != "iteration" and isinstance(v, (int, float))
+                           and not isinstance(v, bool)})
+            columns = {k: np.array([_num(rows[i][0].get(k)) for i in its], dtype=np.float64)
+                       for k in keys}
+            times = np.array([rows[i][1] for i in its], dtype=np.float64)
+            result = MetricSeries(np.array(its, dtype=np.float64), columns, times)
+            self._series = (n, result)
+            return result
+
+    def config_text(self) -> str:
+        """config.yaml as written (the config view and the diff read it on demand)."""
+        return (self.path / CONFIG_FILE).read_text(encoding="utf-8")
+
+    def stdout_tail(self, lines: int = 40, max_bytes: int = 64_000) -> str:
+        """The last `lines` lines of stdout.log (progress bars reduced to their final state)."""
+        path = self.path / STDOUT_FILE
+        try:
+            with open(path, "rb") as f:
+                size = f.seek(0, os.SEEK_END)
+                f.seek(max(0, size - max_bytes))
+                data = f.read().decode("utf-8", errors="replace")
+        except OSError:
+            return ""
+        shown = [ln.rsplit("\r", 1)[-1] for ln in data.splitlines() if ln.strip()]
+        return "\n".join(shown[-lines:])
 
 
 def _num(v: Any) -> float:
@@ -229,42 +328,100 @@ def _short(exc: BaseException) -> str:
     return f"{exc.__class__.__name__}: {text}" if text else exc.__class__.__name__
 
 
-class RunIndex:
-    """All run folders under `runs_dir`, refreshed on demand (the dashboard polls)."""
+def _is_run_folder(path: Path) -> bool:
+    return any(os.path.exists(path / m) for m in RUN_MARKERS)
 
-    def __init__(self, runs_dir: Path) -> None:
+
+class RunIndex:
+    """All run folders under `runs_dir`, refreshed on demand (the dashboard polls).
+
+    `settled_per_refresh`: None re-checks every run on every refresh; a number re-checks
+    that many settled runs per refresh, round-robin (new and live runs always)."""
+
+    def __init__(self, runs_dir: Path, settled_per_refresh: int | None = None) -> None:
         self.runs_dir = Path(runs_dir)
+        self.settled_per_refresh = settled_per_refresh
         self.readers: dict[str, RunReader] = {}
         self.infos: dict[str, RunInfo] = {}
+        self.changed: set[str] = set()
+        """Runs whose info changed (or appeared or disappeared) in the last refresh."""
+        self._rotation: list[str] = []
         self._lock = threading.RLock()
 
-    def refresh(self) -> list[RunInfo]:
-        """Re-read what changed; new folders appear, deleted ones disappear. Never raises."""
-        with self._lock:
+    def _folders(self) -> dict[str, Path]:
+        """Run folders directly under runs_dir (one directory read; markers are checked
+        only for folders not known yet)."""
+        try:
+            entries = list(os.scandir(self.runs_dir))
+        except OSError:
+            return {}
+        found = {}
+        for e in entries:
             try:
-                folders = {r.path.name: r.path for r in find_runs(self.runs_dir)}
+                if not e.is_dir():
+                    continue
             except OSError:
-                folders = {}
-            for name in list(self.readers):
-                if name not in folders:
-                    del self.readers[name]
-                    self.infos.pop(name, None)
-            for name, path in folders.items():
-                reader = self.readers.setdefault(name, RunReader(path))
+                continue
+            path = Path(e.path)
+            if e.name in self.readers or _is_run_folder(path):
+                found[e.name] = path
+        return found
+
+    def _due(self, folders: dict[str, Path]) -> list[str]:
+        """Which runs to re-read now: all, or new + live + the next settled ones in turn."""
+        if self.settled_per_refresh is None:
+            return list(folders)
+        due = [n for n in folders if n not in self.infos or self.infos[n].live]
+        settled = {n for n in folders if n in self.infos and not self.infos[n].live}
+        rotation = [n for n in self._rotation if n in settled]
+        in_rotation = set(rotation)
+        rotation += sorted(n for n in settled if n not in in_rotation)
+        take = rotation[: self.settled_per_refresh]
+        self._rotation = rotation[len(take):] + take
+        return due + take
+
+    def refresh(self) -> list[RunInfo]:
+        """Re-read what is due; new folders appear, deleted ones disappear. Never raises."""
+        with self._lock:
+            folders = self._folders()
+            self.changed = {n for n in self.readers if n not in folders}
+            for name in self.changed:
+                del self.readers[name]
+                self.infos.pop(name, None)
+            for name in self._due(folders):
+                reader = self.readers.setdefault(name, RunReader(folders[name]))
                 try:
-                    self.infos[name] = reader.read()
+                    info = reader.read()
                 except Exception as exc:  # noqa: BLE001 - last line of defence
-                    self.infos[name] = RunInfo(name, path,
-                                               problems=(f"unreadable ({_short(exc)})",))
+                    info = RunInfo(name, folders[name], problems=(f"unreadable ({_short(exc)})",))
+                if self.infos.get(name) != info:
+                    self.changed.add(name)
+                    self.infos[name] = info
             return [self.infos[n] for n in sorted(self.infos)]
+
+    def snapshot(self) -> dict[str, RunInfo]:
+        """The current infos, sorted by run id (oldest first: folder names start with time)."""
+        with self._lock:
+            return {n: self.infos[n] for n in sorted(self.infos)}
 
     def reader(self, run_id: str) -> RunReader | None:
         with self._lock:
             return self.readers.get(run_id)
 
+    def close_logs_except(self, keep: set[str]) -> None:
+        """Drop the tailed logs of runs no browser shows (their memory goes with them)."""
+        with self._lock:
+            for name, reader in self.readers.items():
+                if name not in keep and reader.log_open:
+                    reader.close_log()
+
     def evals(self, run_ids: list[str] | None = None) -> list[EvalResult]:
         """Every parsed eval*.json of the given runs (all runs if None)."""
+        return [e for _run, e in self.evals_by_run(run_ids)]
+
+    def evals_by_run(self, run_ids: list[str] | None = None) -> list[tuple[str, EvalResult]]:
+        """(run id, result) of every parsed eval*.json of the given runs (all if None)."""
         with self._lock:
             ids = sorted(self.readers) if run_ids is None else run_ids
-            return [e for i in ids if i in self.readers
+            return [(i, e) for i in ids if i in self.readers
                     for _name, e in sorted(self.readers[i].evals.items())]

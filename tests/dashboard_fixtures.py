@@ -177,3 +177,140 @@ def make_runs(root: Path, models: Sequence[str] = ("mlp", "detach"), *, broken: 
         (bad / "config.yaml").write_text("task_name: lh1\nmodel_name: cml\nseed: 9\n")
         (bad / "status.json").write_text('{"state": "runn')  # half-written
     return runs
+
+
+# --- a browser without a browser ----------------------------------------------------------
+class HeadlessClient:
+    """A viser client in Python: it connects like a browser (same subprotocol, a camera
+    message to count as connected), records every GUI element the server creates for it and
+    every update, counts the bytes it receives, and sends GUI updates as a browser would, or
+    as an attacker would (any value, any property)."""
+
+    def __init__(self, url: str, origin: str | None = "auto",
+                 headers: dict[str, str] | None = None) -> None:
+        import threading
+
+        import viser
+        from websockets.sync.client import connect
+
+        ws_url = url.replace("http://", "ws://", 1)
+        if origin == "auto":
+            origin = url.split("/?")[0].rstrip("/")
+        self.ws = connect(ws_url, origin=origin, subprotocols=[f"viser-v{viser.__version__}"],
+                          additional_headers=headers or {}, max_size=None, open_timeout=20)
+        self.elements: dict[str, dict[str, Any]] = {}
+        self.bytes_received = 0
+        self.messages_received = 0
+        self.updates: list[tuple[str, str, tuple[str, ...]]] = []
+        """(element type, uuid, updated properties) of every GuiUpdateMessage received."""
+        self.lock = threading.RLock()
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+        self.send("ViewerCameraMessage", wxyz=(1.0, 0.0, 0.0, 0.0), position=(0.0, -5.0, 3.0),
+                  fov=1.0, near=0.01, far=100.0, image_height=800, image_width=1200,
+                  look_at=(0.0, 0.0, 0.0), up_direction=(0.0, 0.0, 1.0))
+
+    def send(self, message_type: str, **fields: Any) -> None:
+        import msgspec
+
+        self.ws.send(msgspec.msgpack.encode({"type": message_type, **fields}))
+
+    def _read(self) -> None:
+        import msgspec
+        import zstandard
+
+        zstd = zstandard.ZstdDecompressor()
+        try:
+            while True:
+                frame = self.ws.recv()
+                size = int.from_bytes(frame[:8], "little")
+                compressed = int.from_bytes(frame[8:16], "little")
+                inner = msgspec.msgpack.decode(zstd.decompress(frame[16:16 + compressed],
+                                                               max_output_size=size))
+                with self.lock:
+                    self.bytes_received += len(frame)
+                    for m in inner["messages"]:
+                        self.messages_received += 1
+                        self._apply(m)
+        except Exception:  # noqa: BLE001 - the connection closed
+            return
+
+    def _apply(self, m: dict[str, Any]) -> None:
+        kind, uuid = m.get("type", ""), m.get("uuid")
+        if kind == "GuiRemoveMessage":
+            self.elements.pop(uuid, None)
+        elif kind == "GuiUpdateMessage" and uuid in self.elements:
+            element = self.elements[uuid]
+            self.updates.append((element["type"], uuid, tuple(m["updates"])))
+            for key, value in m["updates"].items():
+                if key == "value":
+                    element["value"] = value
+                else:
+                    element["props"][key] = value
+        elif kind.startswith("Gui") and kind.endswith("Message") and "props" in m and uuid:
+            self.elements[uuid] = {"type": kind, "props": dict(m["props"]),
+                                   "value": m.get("value")}
+
+    # --- looking -------------------------------------------------------------------------
+    def find(self, label: str, kind: str | None = None) -> str:
+        """uuid of the (last created) element with this label (and message type)."""
+        with self.lock:
+            found = [u for u, e in self.elements.items() if e["props"].get("label") == label
+                     and (kind is None or e["type"] == kind)]
+        if not found:
+            raise KeyError(f"no GUI element labelled {label!r}")
+        return found[-1]
+
+    def value(self, label: str) -> Any:
+        with self.lock:
+            return self.elements[self.find(label)]["value"]
+
+    def props(self, label: str) -> dict[str, Any]:
+        with self.lock:
+            return dict(self.elements[self.find(label)]["props"])
+
+    def text(self) -> str:
+        """Every markdown and HTML text currently shown to this client."""
+        with self.lock:
+            return "\n".join(str(e["props"].get("_markdown", e["props"].get("content", "")))
+                             for e in self.elements.values()
+                             if e["type"] in ("GuiMarkdownMessage", "GuiHtmlMessage"))
+
+    def wait_for(self, predicate, timeout: float = 20.0, what: str = "condition") -> None:
+        import time
+
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if predicate():
+                return
+            time.sleep(0.05)
+        raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+
+    # --- acting ---------------------------------------------------------------------------
+    def set(self, label: str, value: Any, **props: Any) -> None:
+        """What a browser sends when the user changes a control (plus any property); like a
+        browser, the client shows its own value at once."""
+        uuid = self.find(label)
+        with self.lock:
+            if self.elements[uuid]["type"] not in ("GuiButtonMessage", "GuiButtonGroupMessage"):
+                self.elements[uuid]["value"] = value
+        self.send("GuiUpdateMessage", uuid=uuid, updates={"value": value, **props})
+
+    def click(self, label: str, value: Any = True) -> None:
+        self.set(label, value)
+
+    def close(self) -> None:
+        self.ws.close()
+
+
+def start_dashboard(runs: Path, **kwargs: Any):
+    """(server, dashboard, url) of a dashboard on a free loopback port, not polling by itself
+    (tests call `dashboard.poll()`); stop with `server.stop()`."""
+    from server.access import AccessPolicy, serve
+    from server.app import Dashboard
+
+    policy = kwargs.pop("policy", AccessPolicy())
+    server = serve("127.0.0.1", 0, policy)
+    dashboard = Dashboard(server, runs, **kwargs)
+    dashboard.poll()
+    return server, dashboard, f"http://127.0.0.1:{server.get_port()}"

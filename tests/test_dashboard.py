@@ -1,6 +1,6 @@
-"""Dashboard without a browser: the incremental log reader, the run index and its
-'unreadable' reasons, panel contents, the humanoid's batched geometry, the replay clock and
-the dashboard wired to a real (browserless) viser server."""
+"""Dashboard without a browser: the incremental log reader, the run index (its 'unreadable'
+reasons, lazy logs, round-robin re-checks), the humanoid's batched geometry, the replay clock
+and the command line. Panels with a real viser server: tests/test_dashboard_sessions.py."""
 
 from __future__ import annotations
 
@@ -16,17 +16,16 @@ import pytest
 
 from detach.character import build_character_model
 from detach.character.body import BODY_NAMES
-from detach.eval.tables import TABLES
 from detach.run_contract import SCENE_TOPIC, EpisodeFrame
 from detach.runs.mcap_log import RunLogWriter, read_episodes, read_metrics
 from server import log_tail
 from server.cli import build_parser, main
-from server.launch import _follow, launch_command
-from server.log_tail import LogTail
-from server.replay import Player
+from server.launch import Launched, follow_output, launch_command
+from server.log_tail import LogTail, closed_cleanly
+from server.replay import Player, Replay
 from server.run_index import RunIndex
-from server.scene_view import find_mesh, humanoid_instances, instance_poses
-from server.views import comparison_tables, curve_groups, overlay, runs_table, short_id
+from server.run_views import runs_table, short_id
+from server.scene_geometry import humanoid_instances, instance_poses
 from tests.dashboard_fixtures import humanoid_geoms, make_runs
 
 BODIES = ["pelvis", "torso"]
@@ -248,9 +247,51 @@ def test_refresh_reparses_only_changed_files_and_tracks_new_runs(runs: Path) -> 
     assert reader.parse_count("status.json") == counts["status.json"] + 1
     assert reader.parse_count("config.yaml") == counts["config.yaml"]
     new = _copy_run(runs, "20990101-000000-lh1-detach-s7")
-    assert new.name in [i.run_id for i in index.refresh()]
+    assert new.name in [i.run_id for i in index.refresh()] and index.changed == {new.name}
     shutil.rmtree(new)
-    assert new.name not in [i.run_id for i in index.refresh()]
+    assert new.name not in [i.run_id for i in index.refresh()] and index.changed == {new.name}
+    index.refresh()
+    assert index.changed == set(), "nothing changed: nothing to redraw"
+    assert not any(r.log_open for r in index.readers.values()), "logs are opened on demand"
+
+
+def test_a_log_is_read_only_when_a_browser_opens_it_and_closed_after(runs: Path,
+                                                                      monkeypatch) -> None:
+    index = RunIndex(runs)
+    scans = []
+    real = LogTail.refresh
+    monkeypatch.setattr(LogTail, "refresh", lambda self: scans.append(1) or real(self))
+    index.refresh()
+    index.refresh()
+    assert scans == [], "finished runs' logs are checked from their first and last bytes"
+    run = sorted(index.readers)[0]
+    assert len(index.reader(run).series().iterations) == 6
+    index.close_logs_except(set())
+    assert not index.reader(run).log_open
+    assert closed_cleanly(index.reader(run).path / "log.mcap")
+
+
+def test_settled_runs_are_rechecked_round_robin_and_live_ones_every_time(runs: Path) -> None:
+    for k in range(4):
+        _copy_run(runs, f"20990101-00000{k}-lh1-mlp-s{k}")
+    index = RunIndex(runs, settled_per_refresh=2)
+    index.refresh()
+    assert len(index.infos) == 6
+    last = sorted(runs.iterdir())[-1]
+    status = json.loads((last / "status.json").read_text())
+    (last / "status.json").write_text(json.dumps({**status, "iteration": 77}))
+    seen = []
+    for _ in range(3):  # 6 settled runs, 2 per refresh: all of them within 3 refreshes
+        index.refresh()
+        seen.append(index.infos[last.name].iteration)
+    assert 77 in seen
+    (last / "status.json").write_text(json.dumps({**status, "state": "running"}))
+    for _ in range(3):
+        index.refresh()
+    assert index.infos[last.name].live
+    (last / "status.json").write_text(json.dumps({**status, "state": "running", "iteration": 78}))
+    index.refresh()
+    assert index.infos[last.name].iteration == 78, "a live run is re-read on every refresh"
 
 
 def test_metrics_appended_while_reading_reach_the_series(tmp_path: Path) -> None:
@@ -273,41 +314,6 @@ def test_metrics_appended_while_reading_reach_the_series(tmp_path: Path) -> None
     assert series.columns["reward/mean"][3] == 30.0
     assert np.isnan(series.columns["success/follow"][0]) and series.columns["success/follow"][1] == 0.5
     log.close()
-
-
-# --- views -----------------------------------------------------------------------------------
-def test_tables_are_the_ones_of_detach_eval_tables(runs: Path) -> None:
-    index = RunIndex(runs)
-    index.refresh()
-    evals = index.evals()
-    assert len(evals) == 4  # eval.json + eval_lh3.json of two runs
-    tables, errors = comparison_tables(evals)
-    assert not errors
-    for name, build in TABLES.items():
-        assert tables[name].to_markdown() == build(evals).to_markdown()
-        assert tables[name].to_csv() == build(evals).to_csv()
-    assert len(tables["skills"].rows) == 2 and len(tables["ablation"].rows) == 2
-    _tables, errors = comparison_tables([{"task": "lh1"}])  # malformed: reported, not raised
-    assert errors
-
-
-def test_curves_group_by_prefix_and_overlay_on_the_union_of_iterations(runs: Path) -> None:
-    index = RunIndex(runs)
-    infos = index.refresh()
-    series = {i.run_id: index.reader(i.run_id).series() for i in infos}
-    groups = curve_groups(series)
-    assert list(groups)[0] == "general" and groups["general"] == ["fps"]
-    assert groups["loss"] == ["loss/amp", "loss/surrogate", "loss/value"]
-    assert {"reward", "success", "episode"} <= set(groups)
-    a, b = list(series)
-    series[b].iterations = series[b].iterations[::2] + 100
-    series[b].columns = {k: v[::2] for k, v in series[b].columns.items()}
-    c = overlay("reward/mean", series, {})
-    assert len(c.x) == 6 + 3 and len(c.ys) == 2
-    assert np.isnan(c.ys[0][-1]) and np.isnan(c.ys[1][0]) and not np.isnan(c.ys[1][-1])
-    long = overlay("reward/mean", series, {}, max_points=4)
-    assert len(long.x) <= 5 and long.x[-1] == c.x[-1]
-    assert short_id(infos[0]) == infos[0].run_id.split("-lh1-")[0]
 
 
 # --- 3D geometry and replay clock -----------------------------------------------------------
@@ -361,127 +367,54 @@ def test_player_plays_loops_holds_and_seeks() -> None:
     assert p.advance(1.0) == 4
     p.load(np.arange(20) / 10, keep_time=True)
     assert p.frame == 4, "a growing live episode keeps the current time"
+    assert p.step(1) == 5 and p.step(-2) == 3 and not p.playing, "steps pause the replay"
+    p.hold_at_end, p.loop, p.playing = False, False, True
+    assert p.advance(10.0) == 19 and not p.playing, "without loop the replay stops at the end"
 
 
-def test_missing_meshes_are_found_under_the_assets_root(tmp_path: Path, monkeypatch) -> None:
-    mesh = tmp_path / "assets" / "chair" / "chair_v0" / "mesh.obj"
-    mesh.parent.mkdir(parents=True)
-    mesh.write_text("v 0 0 0\n")
-    monkeypatch.setenv("DETACH_ASSETS", str(tmp_path / "assets"))
-    assert find_mesh("/elsewhere/assets/chair/chair_v0/mesh.obj", tmp_path) == mesh
-    assert find_mesh("/elsewhere/assets/chair/nothing/mesh.obj", tmp_path) is None
-    assert find_mesh(None, tmp_path) is None
+def test_a_second_episode_plays_on_the_same_clock() -> None:
+    from server.episode import Episode
+
+    def episode(frames: int) -> Episode:
+        times = np.arange(frames) / 10
+        return Episode(0, ["pelvis"], times, np.zeros((frames, 1, 3)), np.tile([1.0, 0, 0, 0],
+                       (frames, 1, 1)), np.zeros(frames, int), ["follow"] * frames)
+
+    drawn = []
+    replay = Replay(lambda slot, ep, i: drawn.append((slot, i)))
+    replay.set_episode("a", episode(10))
+    replay.set_episode("b", episode(4))
+    drawn.clear()
+    replay.tick(0.25)
+    assert sorted(drawn) == [("a", 2), ("b", 2)]
+    drawn.clear()
+    replay.tick(0.3)
+    assert drawn == [("a", 5), ("b", 3)] or sorted(drawn) == [("a", 5), ("b", 3)], \
+        "the shorter episode holds its last frame"
+    replay.set_episode("a", None)
+    assert replay.episode is None
 
 
-# --- the dashboard with a real viser server, no browser ---------------------------------
-def test_dashboard_panels_follow_the_runs_folder(runs: Path) -> None:
-    import viser
-
-    from server.app import Dashboard
-
-    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-    try:
-        d = Dashboard(server, runs)
-        d.poll()
-        ids = sorted(p.name for p in runs.iterdir())
-        assert d.selected == [ids[-1]], "the newest run is selected at first"
-        assert d.replay.episode is not None and d.replay.episode.num_frames == 12
-        costs = []
-        for i in range(60):
-            t0 = time.perf_counter()
-            d._draw_frame(d.replay.episode, i % 12)
-            costs.append(time.perf_counter() - t0)
-        assert np.median(costs) < 0.005, f"per-frame update {np.median(costs) * 1e3:.2f} ms"
-        d.set_selection(ids)
-        new = _copy_run(runs, "20990101-000000-lh1-cml-s3")
-        (new / "status.json").write_text("{")
-        d.poll()
-        assert new.name in d.infos and d.infos[new.name].unreadable
-    finally:
-        server.stop()
-
-
-def test_a_live_run_streams_its_newest_episode(tmp_path: Path) -> None:
-    import viser
-
-    from server.app import Dashboard
-
-    make_runs(tmp_path / "runs", models=("mlp",), broken=False, iterations=2, frames=5)
-    run = next((tmp_path / "runs").iterdir())
-    scene = json.loads(json.dumps(log_tail_scene(run)))
-    status = json.loads((run / "status.json").read_text())
-    (run / "status.json").write_text(json.dumps({**status, "state": "running"}))
-    log = RunLogWriter(run / "log.mcap", flush_every=5)
-    log.write(SCENE_TOPIC, scene, 0)
-    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-    try:
-        d = Dashboard(server, tmp_path / "runs")
-        d.poll()
-        assert d.replay.episode is None
-        lengths = []
-        for ep, frames in ((0, 10), (0, 20), (1, 5)):
-            start = 0 if not lengths or ep != 0 else lengths[-1][1]
-            for f in range(start, frames):
-                _frame(log, ep, f)
-            log.flush()
-            d.poll()
-            lengths.append((d.replay.episode.number, d.replay.episode.num_frames))
-        assert lengths == [(0, 10), (0, 20), (1, 5)]
-        assert d.replay.player.hold_at_end, "a live episode waits for its next frames"
-        assert not d.infos[run.name].unreadable
-    finally:
-        log.close()
-        server.stop()
-
-
-def log_tail_scene(run: Path) -> dict:
-    tail = LogTail(run / "log.mcap")
-    tail.refresh()
-    return tail.scene
-
-
-def test_garbage_scene_and_frames_become_notes_not_crashes(tmp_path: Path) -> None:
-    import viser
-
-    from server.app import Dashboard
-
-    make_runs(tmp_path / "runs", models=("mlp",), broken=False, iterations=2, frames=5)
-    run = next((tmp_path / "runs").iterdir())
-    with RunLogWriter(run / "log.mcap") as log:
-        log.write(SCENE_TOPIC, {"objects": [{"name": "ok", "pos": [0, 0, 0.5], "bbox": [1, 1, 1]},
-                                            "not an object", {"pos": "xyz"}],
-                                "trajectories": {"0": [[0, 0], "bad"]}, "targets": 5,
-                                "bodies": ["a", "b"], "body_geoms": [{"type": "capsule", "size": "x"}]}, 0)
-        log.log_frame(EpisodeFrame(0, 0, 0.0, ["a", "b"], [[0, 0, 1], [0, 0, 1]], [[1, 0, 0, 0], [1, 0, 0, 0]]))
-        log.log_frame(EpisodeFrame(0, 1, 0.1, ["a", "b"], [[0, 0, float("nan")], [0, 0, 1]],
-                                   [[1, 0, 0, 0], [1, 0, 0, 0]]))
-    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-    try:
-        d = Dashboard(server, tmp_path / "runs")
-        d.poll()  # must not raise
-        notes = " ".join(d.view.notes)
-        assert "object 1" in notes and "object 2" in notes and "trajectory 0" in notes
-        assert "body_geoms" in notes
-        assert d.replay.episode is None, "non-finite poses are refused, not drawn"
-    finally:
-        server.stop()
-
-
-def test_cli_binds_to_loopback_unless_exposed(tmp_path: Path) -> None:
+def test_cli_binds_to_loopback_unless_exposed_and_rejects_bad_options(tmp_path: Path,
+                                                                      capsys) -> None:
     args = build_parser().parse_args([])
     assert (args.host, args.port, args.expose, args.allow_launch) == ("127.0.0.1", 8080,
                                                                       False, False)
     assert build_parser().parse_args(["--expose"]).expose
     not_a_dir = tmp_path / "file"
     not_a_dir.write_text("x")
-    assert main(["--runs", str(not_a_dir)]) == 2
+    for argv, said in ((["--runs", str(not_a_dir)], "is not a folder"),
+                       (["--poll", "0"], "--poll 0.0 must be > 0"),
+                       (["--launch-limit", "0"], "--launch-limit 0 must be at least 1"),
+                       (["--port", "70000"], "--port 70000 must be 0..65535")):
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and said in err[0], err
     cmd = launch_command(Path("configs/tasks/lh1.yaml"), "detach", 3, tmp_path,
-                         "train.max_iterations=5 'sim.num_envs=8'")
+                         ["train.max_iterations=5", "sim.num_envs=8"])
     assert cmd[1:] == ["-m", "detach.cli", "configs/tasks/lh1.yaml", "--model", "detach",
                        "--seed", "3", "--out", str(tmp_path), "train.max_iterations=5",
                        "sim.num_envs=8"]
-    with pytest.raises(ValueError):
-        launch_command(Path("x.yaml"), "mlp", 0, tmp_path, "--dry-run")
 
 
 def test_launched_process_output_and_exit_code_are_shown(tmp_path: Path) -> None:
@@ -494,5 +427,5 @@ def test_launched_process_output_and_exit_code_are_shown(tmp_path: Path) -> None
         proc = subprocess.Popen([sys.executable, "-c", "print('hello'); raise SystemExit(3)"],
                                 stdout=out, stderr=subprocess.STDOUT)
     shown = SimpleNamespace(content="")
-    _follow(proc, log_path, shown, "python -c ...")
+    follow_output(Launched(proc, log_path, "-c ..."), shown)
     assert "exited with code 3" in shown.content and "hello" in shown.content

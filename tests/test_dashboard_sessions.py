@@ -1,0 +1,257 @@
+"""The dashboard with a real viser server and browsers without a browser (HeadlessClient):
+per-connection state (issue 22 defect 3), the replay cleared for a run without episodes
+(defect 4), incremental updates (defect 7), n and pooled runs in the tables (defect 6), a live
+run streaming its newest episode, and malformed logs turned into notes."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from detach.character.body import BODY_NAMES
+from detach.run_contract import SCENE_TOPIC, EpisodeFrame
+from detach.runs.mcap_log import RunLogWriter
+from server.log_tail import LogTail
+from tests.dashboard_fixtures import HeadlessClient, make_runs, start_dashboard
+
+
+@pytest.fixture()
+def runs(tmp_path: Path) -> Path:
+    make_runs(tmp_path / "runs", broken=False, iterations=6, frames=12)
+    return tmp_path / "runs"
+
+
+def _session(dashboard):
+    assert len(dashboard.sessions) == 1
+    return next(iter(dashboard.sessions.values()))
+
+
+def _connect(url: str, dashboard, count: int) -> HeadlessClient:
+    client = HeadlessClient(url)
+    client.wait_for(lambda: len(dashboard.sessions) == count, what="the session")
+    client.wait_for(lambda: len(client.elements) > 30, what="the panels")
+    return client
+
+
+def test_two_browsers_keep_separate_selections(runs: Path) -> None:
+    server, dashboard, url = start_dashboard(runs)
+    a = _connect(url, dashboard, 1)
+    b = _connect(url, dashboard, 2)
+    try:
+        ids = sorted(p.name for p in runs.iterdir())
+        sa, sb = (dashboard.sessions[k] for k in sorted(dashboard.sessions))
+        assert sa.selected == sb.selected == [ids[-1]], "each starts with the newest run"
+        first_label = sa.labels[ids[0]]
+        a.set(first_label, True)  # tick the other run in A's compare list
+        a.wait_for(lambda: sa.selected == ids[-1:] + ids[:1], what="A's selection")
+        a.set("Run", ids[0])  # and show it in A's replay
+        a.wait_for(lambda: sa.replay.episode is not None and
+                   a.value("Run") == ids[0], what="A's replay")
+        time.sleep(0.5)
+        assert sb.selected == [ids[-1]] and b.value(first_label) is False
+        assert b.value("Run") == ids[-1], "B's dropdown did not follow A's"
+        assert "2 run(s): <span" in a.text() and "1 run(s): <span" in b.text()
+    finally:
+        a.close()
+        b.close()
+        server.stop()
+
+
+def test_controls_refuse_values_outside_their_options(runs: Path) -> None:
+    server, dashboard, url = start_dashboard(runs)
+    client = _connect(url, dashboard, 1)
+    try:
+        session = _session(dashboard)
+        shown = client.value("Run")
+        for label, value in (("Run", "../../etc"), ("Beside it", "nope"), ("Group by", "x"),
+                             ("X axis", "epochs"), ("Pool", "everything")):
+            client.set(label, value)
+        time.sleep(0.5)
+        dashboard.poll()
+        assert session.replay.episode is not None and client.value("Run") in (shown, "../../etc")
+        axes = [e["props"]["axes"][0]["label"] for e in client.elements.values()
+                if e["type"] == "GuiUplotMessage"]
+        assert axes and set(axes) == {"iteration"}, "an unknown x axis falls back to iteration"
+    finally:
+        client.close()
+        server.stop()
+
+
+def _without_episodes(runs: Path) -> Path:
+    """A copy of the first run whose log has the scene and metrics but no frames."""
+    src = sorted(runs.iterdir())[0]
+    dst = runs / (src.name.replace("-s0", "-s5") + "-x")
+    shutil.copytree(src, dst)
+    tail = LogTail(src / "log.mcap")
+    tail.refresh()
+    with RunLogWriter(dst / "log.mcap") as log:
+        log.write(SCENE_TOPIC, tail.scene, 0)
+        for m in tail.metrics:
+            log.log_metrics(int(m["iteration"]), {k: v for k, v in m.items()
+                                                   if k not in ("iteration", "stage")})
+    return dst
+
+
+def test_switching_to_a_run_without_episodes_clears_the_replay(runs: Path) -> None:
+    empty = _without_episodes(runs)
+    server, dashboard, url = start_dashboard(runs)
+    client = _connect(url, dashboard, 1)
+    try:
+        session = _session(dashboard)
+        ids = sorted(p.name for p in runs.iterdir())
+        client.set("Run", ids[0])
+        client.wait_for(lambda: session.replay.episode is not None
+                        and "frame 1/12" in client.text() or "/12" in client.text(),
+                        what="an episode of the first run")
+        assert client.props("Frame")["disabled"] is False
+        client.set("Run", empty.name)
+        client.wait_for(lambda: "no episode recorded" in client.text(), what="the cleared replay")
+        assert session.replay.episode is None and session.replay.episodes == {}
+        assert client.props("Frame")["disabled"] is True and client.value("Frame") == 0
+        assert client.props("Episode")["options"] == ["(none)"]
+        assert "current subtask" not in client.text() and "/12" not in client.text()
+    finally:
+        client.close()
+        server.stop()
+
+
+def test_an_idle_dashboard_sends_nothing_and_a_new_iteration_only_the_charts_in_view(
+        tmp_path: Path) -> None:
+    make_runs(tmp_path / "runs", models=("mlp",), broken=False, iterations=5, frames=4)
+    run = next((tmp_path / "runs").iterdir())
+    tail = LogTail(run / "log.mcap")
+    tail.refresh()
+    status = json.loads((run / "status.json").read_text())
+    (run / "status.json").write_text(json.dumps({**status, "state": "running"}))
+    log = RunLogWriter(run / "log.mcap")
+    log.write(SCENE_TOPIC, tail.scene, 0)
+    keys = {f"{group}/k{i}": 0.0 for group in ("loss", "reward", "policy", "time") for i in range(8)}
+    for it in range(5):
+        log.log_metrics(it, {k: float(it + j) for j, k in enumerate(keys)})
+    log.flush()
+    server, dashboard, url = start_dashboard(tmp_path / "runs")
+    client = _connect(url, dashboard, 1)
+    try:
+        client.wait_for(lambda: sum(e["type"] == "GuiUplotMessage"
+                                    for e in client.elements.values()) == 8, what="8 charts")
+        for _ in range(3):
+            dashboard.poll()
+        time.sleep(0.5)
+        before, updates = client.bytes_received, len(client.updates)
+        for _ in range(3):
+            dashboard.poll()
+            time.sleep(0.2)
+        assert client.bytes_received == before, "an idle poll sends nothing (no 'N s ago')"
+        log.log_metrics(5, {k: 5.0 + j for j, k in enumerate(keys)})
+        log.flush()
+        dashboard.poll()
+        client.wait_for(lambda: len(client.updates) > updates, what="the new iteration")
+        time.sleep(0.5)
+        charts = {u for kind, u, props in client.updates[updates:] if kind == "GuiUplotMessage"}
+        assert len(charts) == 8, "the 8 charts in view, not all 32 metrics"
+        other = [(kind, props) for kind, _u, props in client.updates[updates:]
+                 if kind not in ("GuiUplotMessage",)]
+        assert all(kind != "GuiMarkdownMessage" or "runs" not in str(props) for kind, props in other)
+    finally:
+        log.close()
+        client.close()
+        server.stop()
+
+
+def test_tables_show_n_and_which_runs_were_pooled(runs: Path) -> None:
+    server, dashboard, url = start_dashboard(runs)
+    client = _connect(url, dashboard, 1)
+    try:
+        client.wait_for(lambda: "Pooled runs" in client.text(), what="the tables")
+        text = client.text()
+        assert "mlp lh1 s0" in text and "detach lh1 s1" in text
+        assert "paper: DETACH" in text and "white-space:nowrap" in text
+        client.set("One row per run", True)
+        client.wait_for(lambda: "↳ mlp lh1 s0" in client.text(), what="the per-run rows")
+        if "<th style='padding:2px 6px;white-space:nowrap;border-bottom:1px solid #e4e4e4;" \
+           "text-align:left'>n</th>" in client.text():
+            assert "40 (1 seed)" in client.text()
+    finally:
+        client.close()
+        server.stop()
+
+
+def test_a_live_run_streams_its_newest_episode(tmp_path: Path) -> None:
+    make_runs(tmp_path / "runs", models=("mlp",), broken=False, iterations=2, frames=5)
+    run = next((tmp_path / "runs").iterdir())
+    tail = LogTail(run / "log.mcap")
+    tail.refresh()
+    status = json.loads((run / "status.json").read_text())
+    (run / "status.json").write_text(json.dumps({**status, "state": "running"}))
+    log = RunLogWriter(run / "log.mcap", flush_every=5)
+    log.write(SCENE_TOPIC, tail.scene, 0)
+    log.flush()
+    server, dashboard, url = start_dashboard(tmp_path / "runs")
+    client = _connect(url, dashboard, 1)
+    try:
+        session = _session(dashboard)
+        assert session.replay.episode is None
+        lengths = []
+        for ep, frames in ((0, 10), (0, 20), (1, 5)):
+            start = 0 if not lengths or ep != 0 else lengths[-1][1]
+            for f in range(start, frames):
+                log.log_frame(EpisodeFrame(ep, f, f / 30, list(BODY_NAMES),
+                                           np.zeros((15, 3)).tolist(),
+                                           np.tile([1.0, 0, 0, 0], (15, 1)).tolist()))
+            log.flush()
+            dashboard.poll()
+            lengths.append((session.replay.episode.number, session.replay.episode.num_frames))
+        assert lengths == [(0, 10), (0, 20), (1, 5)]
+        assert session.replay.player.hold_at_end, "a live episode waits for its next frames"
+        assert not session.infos[run.name].unreadable
+    finally:
+        log.close()
+        client.close()
+        server.stop()
+
+
+def test_garbage_scene_and_frames_become_notes_not_crashes(tmp_path: Path) -> None:
+    make_runs(tmp_path / "runs", models=("mlp",), broken=False, iterations=2, frames=5)
+    run = next((tmp_path / "runs").iterdir())
+    with RunLogWriter(run / "log.mcap") as log:
+        log.write(SCENE_TOPIC, {"objects": [{"name": "ok", "pos": [0, 0, 0.5], "bbox": [1, 1, 1]},
+                                            "not an object", {"pos": "xyz"}],
+                                "trajectories": {"0": [[0, 0], "bad"]}, "targets": 5,
+                                "bodies": ["a", "b"], "body_geoms": [{"type": "capsule", "size": "x"}]}, 0)
+        log.log_frame(EpisodeFrame(0, 0, 0.0, ["a", "b"], [[0, 0, 1], [0, 0, 1]], [[1, 0, 0, 0], [1, 0, 0, 0]]))
+        log.log_frame(EpisodeFrame(0, 1, 0.1, ["a", "b"], [[0, 0, float("nan")], [0, 0, 1]],
+                                   [[1, 0, 0, 0], [1, 0, 0, 0]]))
+    server, dashboard, url = start_dashboard(tmp_path / "runs")
+    client = _connect(url, dashboard, 1)
+    try:
+        client.wait_for(lambda: "object 1" in client.text(), what="the notes")
+        text = client.text()
+        assert "object 2" in text and "trajectory 0" in text and "body_geoms" in text
+        assert "non-finite body poses" in text
+        assert _session(dashboard).replay.episode is None, "non-finite poses are refused"
+    finally:
+        client.close()
+        server.stop()
+
+
+def test_a_replay_frame_costs_the_server_well_under_a_30_fps_budget(runs: Path) -> None:
+    server, dashboard, url = start_dashboard(runs)
+    client = _connect(url, dashboard, 1)
+    try:
+        replay = _session(dashboard).replay
+        client.wait_for(lambda: replay.episode is not None, what="an episode")
+        costs = []
+        for i in range(60):
+            replay.player.seek(i % 12)
+            t0 = time.perf_counter()
+            replay.redraw()
+            costs.append(time.perf_counter() - t0)
+        assert np.median(costs) < 0.01, f"per-frame update {np.median(costs) * 1e3:.2f} ms"
+    finally:
+        client.close()
+        server.stop()
