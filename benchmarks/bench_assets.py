@@ -114,6 +114,7 @@ def bench_large_import(faces: int, budget: float) -> None:
         print(f"  mesh {cfg['mesh']['source_faces']} -> {cfg['mesh']['faces']} faces; CoACD input {col['input_faces']} "
               f"faces; {col['hull_count']} hulls by {col['method']}; tries: {tries or 'none (convex)'}; "
               f"build {cfg['build_seconds']:.1f} s")
+        print("  seconds per step: " + ", ".join(f"{k} {v:.1f}" for k, v in cfg.get("seconds", {}).items()))
 
 
 def main() -> None:

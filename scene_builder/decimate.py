@@ -29,12 +29,16 @@ default): the first pass faithful (7 bulged a UV sphere's poles by 20%, 3 kept i
 at ~1.4x the time), later passes only finish what it left above the cap. When they still stop
 short (fans of 256 thin triangles around a CAD cylinder do not collapse at all), vertex
 clustering reaches the cap."""
-PRECLUSTER = 4
+PRECLUSTER = 1.5
 """Meshes above this many times the cap are vertex-clustered to that many faces before quadric
-collapse, so the quadric passes see at most 4x the cap (their worst case, ~100 us a face, is
-then ~40 s at the default cap). Clustering merges everything within a cell, ~5 mm on a table at
-4x the default cap: thin panels survive it there, not at much coarser caps (a panel thinner
-than the cell becomes a sheet), hence the quadric passes for the last step."""
+collapse, so the quadric passes see at most 1.5x the cap: their worst case, a finely
+tessellated thin panel, costs ~100 us a face and stalls at ~70% (a 300k-face CAD table took
+86 s without this), which is then ~15-25 s at the default cap. Clustering merges everything
+within a cell, ~8 mm on a table at 1.5x the default cap: thin panels survive it there, not at
+much coarser caps (a panel thinner than the cell becomes a sheet), hence the quadric passes
+for the last step."""
+CLUSTER_FILL = 0.8
+"""Clustering stops once it is within this fraction of the cap (it cannot hit it exactly)."""
 STALLED = 0.9
 """A pass that keeps more than this fraction of its input faces has stalled (on a 49k-face CAD
 table with fan-capped legs, three stalled passes took 12.7 s): go to clustering."""
@@ -73,7 +77,7 @@ def decimate(mesh: trimesh.Trimesh, max_faces: int, label: str) -> tuple[trimesh
         return mesh, Decimation(faces_in, faces_in)
     out, steps = mesh, []
     if faces_in > PRECLUSTER * max_faces:
-        out = _cluster(out, PRECLUSTER * max_faces)
+        out = _cluster(out, int(PRECLUSTER * max_faces))
         steps.append("clustering")
     if len(out.faces) > max_faces:
         steps.append("quadric")
@@ -101,7 +105,8 @@ def _cluster(mesh: trimesh.Trimesh, max_faces: int) -> trimesh.Trimesh:
     collapsed faces go. Coarse but fast and guaranteed; the merging is trimesh's
     (`merge_vertices` with 0 digits on coordinates divided by the cell size), only the choice
     of the cell is ours: from the surface area (a surface sampled every h metres has ~2 A / h^2
-    triangles), then grown until the count is under the cap (a few steps)."""
+    triangles), then adjusted by the square root of the count's ratio to the cap until the count
+    is under the cap and within CLUSTER_FILL of it (a few steps; at most 12)."""
 
     def clustered(cell: float) -> trimesh.Trimesh:
         out = trimesh.Trimesh(np.asarray(mesh.vertices) / cell, np.asarray(mesh.faces), process=False)
@@ -113,9 +118,18 @@ def _cluster(mesh: trimesh.Trimesh, max_faces: int) -> trimesh.Trimesh:
         return out
 
     cell = max(float(np.sqrt(2.0 * float(mesh.area) / max_faces)), float(mesh.scale) * 1e-6)
-    for _ in range(30):
+    best: trimesh.Trimesh | None = None
+    for _ in range(12):  # a secant-like search on the cell size for a count just under the cap
         out = clustered(cell)
-        if 0 < len(out.faces) <= max_faces:
-            return out
-        cell *= max(1.1, float(np.sqrt(len(out.faces) / max_faces))) if len(out.faces) else 0.5
-    return mesh.convex_hull  # not reached in practice: the cell grows at least 10% a step
+        count = len(out.faces)
+        if 0 < count <= max_faces:
+            if best is None or count > len(best.faces):
+                best = out
+            if count >= CLUSTER_FILL * max_faces:
+                break
+            cell *= min(0.98, float(np.sqrt(count / max_faces)) * 1.02)  # finer, towards the cap
+        else:
+            cell *= max(1.05, float(np.sqrt(count / max_faces))) if count else 0.5
+    if best is not None:
+        return best
+    return mesh.convex_hull  # not reached in practice: the cell grows at least 5% a step

@@ -8,8 +8,8 @@ CoACD's time is not bounded by its hull cap: real 25-29k-face CAD parts ran past
 default threshold 0.05 (0.1: ~60 s, 0.2: ~35 s, 0.5: 2-3 s). So every run happens in a child
 process (`scene_builder.coacd_worker`) that is killed when its share of the per-asset budget
 is spent, and the next try raises the threshold (coarser, fewer hulls, much faster):
-threshold t, 2t, 4t, ... up to `MAX_THRESHOLD` (0.05, 0.1, 0.2, 0.5), each try allowed half of
-the budget left (the last one all of it). When every try runs out of time, the fallback is bounded by construction:
+threshold t, 2t, 4t, ... up to `MAX_THRESHOLD` (0.05, 0.1, 0.2, 0.5); a quarter of the budget
+is kept for the last try, and each earlier try gets half of the rest that is left. When every try runs out of time, the fallback is bounded by construction:
 the convex hulls of the mesh's connected parts, or of `max_hulls` spatial clusters of its
 faces (k-means), merged down to `max_hulls`. What happened is returned as a `HullReport`
 (config.json "collision") and, when it is not plain CoACD at the requested threshold, as a
@@ -37,6 +37,9 @@ from scene_builder.settings import TIME_BUDGET  # default seconds per asset; the
 
 MAX_THRESHOLD = 0.5
 """Coarsest CoACD threshold tried before the fallback (~2-3 s on real CAD parts)."""
+FINAL_SHARE = 0.25
+"""Share of the budget kept for the last, coarsest try (it usually needs a few seconds, which a
+halving schedule would not leave it on a loaded machine)."""
 HEARTBEAT = 15.0
 """Seconds between progress lines while CoACD runs."""
 
@@ -227,11 +230,14 @@ def convex_hulls(
     preprocess = "off" if work.is_watertight else "auto"
     ladder = thresholds(threshold)
     deadline = time.perf_counter() + budget_s
+    reserve = FINAL_SHARE * budget_s if len(ladder) > 1 else 0.0  # kept for the coarsest, fast try
     for i, t in enumerate(ladder):
         left = deadline - time.perf_counter()
         if left <= 0:
             break
-        timeout = left if i == len(ladder) - 1 else left / 2.0
+        timeout = left if i == len(ladder) - 1 else (left - reserve) / 2.0
+        if timeout <= 0:
+            continue
         params = {"threshold": t, "max_convex_hull": max_hulls, "preprocess_mode": preprocess,
                   "decimate": True, "max_ch_vertex": max_hull_vertices, "seed": seed}
         attempt = run_attempt(work, params, timeout, label, progress)

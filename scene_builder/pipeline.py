@@ -178,6 +178,19 @@ def source_identity(p: Planned) -> str:
     return p.label if p.request.source == PROCEDURAL else os.path.abspath(p.label)
 
 
+class _Stopwatch:
+    """Seconds per build step, for config.json "seconds" (where a slow import spends its time)."""
+
+    def __init__(self) -> None:
+        self.laps: dict[str, float] = {}
+        self._last = time.perf_counter()
+
+    def lap(self, name: str) -> None:
+        now = time.perf_counter()
+        self.laps[name] = round(now - self._last, 3)
+        self._last = now
+
+
 def _source_mesh(p: Planned) -> tuple[trimesh.Trimesh, float | None]:
     """(raw mesh, default scale) for a planned request."""
     req = p.request
@@ -193,14 +206,18 @@ def process(p: Planned, options: BuildOptions, progress: Progress | None = None)
     The bbox and the height-map grid come from the full-resolution mesh; the height map, the
     orientation evidence, mesh.obj and CoACD use the copy decimated to `options.max_faces`."""
     req, imported = p.request, p.request.source != PROCEDURAL
+    clock = _Stopwatch()
     raw, default_scale = _source_mesh(p)
+    clock.lap("load")
     raw_work, decimation = decimate(raw, options.max_faces, p.label)
+    clock.lap("decimate")
     warnings: list[str] = []
     up, flip, orientation = ("y", False, None) if not imported else (req.up, req.flip, None)
     if imported:
         orientation = assess(raw_work, req.up, req.flip, p.label, options.ray_engine)
         up, flip = orientation.up, orientation.flip
         warnings += orientation.warnings
+        clock.lap("orientation")
     scale = req.scale if (req.scale is not None or req.size is not None) else default_scale
     transform = frame_transform(raw, up=up, yaw=req.yaw, scale=scale, size=req.size, flip=flip)
     used = transform.apply(np.asarray(raw.vertices)[raw.referenced_vertices])  # what trimesh's bounds use
@@ -211,6 +228,7 @@ def process(p: Planned, options: BuildOptions, progress: Progress | None = None)
     bbox = np.asarray(full_bounds[1] - full_bounds[0], dtype=np.float64)
     if imported and req.size is None:
         warnings += [w for w in [size_warning(bbox, p.label, scale)] if w]
+    clock.lap("normalise")
     top, engine = surface_top(mesh, RESOLUTION, options.ray_engine, options.grid, full_bounds)
     hmap = heights_from_top(top, float(full_bounds[0, 2]))
     xs, ys = grid_points(full_bounds - (full_bounds[0] + full_bounds[1]) / 2.0, RESOLUTION, options.grid)
@@ -222,8 +240,10 @@ def process(p: Planned, options: BuildOptions, progress: Progress | None = None)
         kind = "supporting surface" if cell.supporting else "surface (no flat patch found)"
         warnings.append(f"{p.label}: nothing under the bbox centre (a gap between parts?); sit/climb targets moved "
                         f"to the nearest {kind} at x={cell.x:+.3f} y={cell.y:+.3f} m, {cell.height:.3f} m high")
+    clock.lap("height_map")
     hulls, report = convex_hulls(mesh, p.label, options.coacd_threshold, options.max_hulls, options.max_hull_vertices,
                                  options.seed, options.time_budget, options.hull_faces, progress)
+    clock.lap("hulls")
     note = report.warning(options.coacd_threshold, len(hulls))
     if note:
         warnings.append(f"{p.label}: {note}")
@@ -251,6 +271,7 @@ def process(p: Planned, options: BuildOptions, progress: Progress | None = None)
                  "decimation": decimation.method},
         "vis": {"file": "vis/mesh.glb", "frame": "asset frame (Z up, metres), not glTF's usual Y up"},
         "warnings": warnings,
+        "seconds": clock.laps,
     }
     if orientation is not None:
         config["orientation"] = orientation.as_dict()
