@@ -42,7 +42,7 @@ def curves_panel(s: Session) -> Panel:
     quiet = threading.local()
     legend = gui.add_markdown("")
     with gui.add_folder("View"):
-        filter_box = gui.add_text("Filter", "", hint="regular expression or words, e.g. "
+        filter_box = gui.add_text("Metric filter", "", hint="regular expressions or words, e.g. "
                                   "'success' or 'loss/(value|surrogate)'")
         view = gui.add_dropdown("Show", (ALL,), hint="one group of metrics, the pinned ones "
                                 "or all (with the filter)")

@@ -75,6 +75,8 @@ def replay_panel(s: Session) -> Panel:
         shown["problem"] = None
         if reader is None:
             return None
+        if choice == NONE:
+            return None  # the log has no episode
         try:
             ep = reader.log.load_episode(None if choice in (None, NEWEST) else int(choice))
             if ep is not None:

@@ -1,7 +1,8 @@
 """Fixture runs folders for the dashboard tests, written with the project's own writers.
 
 `make_runs(root)` creates finished runs (one per model) with config.yaml (resolved LH1),
-status.json, a log.mcap holding /metrics for every iteration, a /scene (box meshes written
+status.json, a log.mcap holding /metrics for every iteration (and `Success/late` from the
+middle on, as metrics logged from the first evaluation are), a /scene (box meshes written
 next to the runs, one object whose mesh is missing, the LH1 trajectory and targets, the real
 humanoid's 15 bodies and geoms) and an episode whose bodies come from MuJoCo forward
 kinematics of a walking-like motion, and eval.json / eval_lh3.json from
@@ -144,9 +145,11 @@ def make_run(root: Path, model_name: str, seed: int, *, shift: float, now: float
                        "loss/surrogate": -0.01 * x, "loss/value": 1.0 / (1 + it),
                        "loss/amp": 0.5 - 0.2 * x, "success/follow": min(1.0, 1.2 * x),
                        "success/carry": x * x, "fps": 900.0 + 50 * rng.random(),
-                       "episode/length": 100 + 10 * it}
+                       "episode/length": 100 + 10 * it, "learning_rate": 1e-3 * 0.9 ** it}
+            if it >= iterations // 2:  # logged from the first evaluation on, as Success/* are
+                metrics["Success/late"] = 0.2 + 0.6 * x
             log.log_metrics(it, metrics, stage=stage)
-        for f in range(frames):
+        for f in range(frames):  # frames=0: a run that recorded no episode
             ahead = pos[f, 0, :2] + 0.45 * np.array([math.cos(heading), math.sin(heading)])
             box = objects[0]["pos"] if f < frames // 2 else [*ahead, 1.0]  # carried in front
             subtask = 0 if f < frames // 2 else 1

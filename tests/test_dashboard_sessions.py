@@ -115,6 +115,7 @@ def test_switching_to_a_run_without_episodes_clears_the_replay(runs: Path) -> No
         assert client.props("Frame")["disabled"] is True and client.value("Frame") == 0
         assert client.props("Episode")["options"] == ["(none)"]
         assert "current subtask" not in client.text() and "/12" not in client.text()
+        assert "unreadable" not in client.text(), "no episode is not an error"
     finally:
         client.close()
         server.stop()
