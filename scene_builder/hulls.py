@@ -8,8 +8,10 @@ CoACD's time is not bounded by its hull cap: real 25-29k-face CAD parts ran past
 default threshold 0.05 (0.1: ~60 s, 0.2: ~35 s, 0.5: 2-3 s). So every run happens in a child
 process (`scene_builder.coacd_worker`) that is killed when its share of the per-asset budget
 is spent, and the next try raises the threshold (coarser, fewer hulls, much faster):
-threshold t, 2t, 4t, ... up to `MAX_THRESHOLD` (0.05, 0.1, 0.2, 0.5); a quarter of the budget
-is kept for the last try, and each earlier try gets half of the rest that is left. When every try runs out of time, the fallback is bounded by construction:
+threshold t, 2t, 4t, ... up to `MAX_THRESHOLD` (0.05, 0.1, 0.2, 0.5) and, for inputs that need
+CoACD's manifold remeshing (not watertight), a coarser remeshing (resolution 50 down to 20: on
+real CAD the remeshing, not the threshold, is most of the time); a quarter of the budget is
+kept for the last try, and each earlier try gets half of the rest that is left. When every try runs out of time, the fallback is bounded by construction:
 the convex hulls of the mesh's connected parts, or of `max_hulls` spatial clusters of its
 faces (k-means), merged down to `max_hulls`. What happened is returned as a `HullReport`
 (config.json "collision") and, when it is not plain CoACD at the requested threshold, as a
@@ -37,6 +39,10 @@ from scene_builder.settings import TIME_BUDGET  # default seconds per asset; the
 
 MAX_THRESHOLD = 0.5
 """Coarsest CoACD threshold tried before the fallback (~2-3 s on real CAD parts)."""
+PREPROCESS_RESOLUTION = 50
+"""CoACD's default resolution of its manifold remeshing (non-watertight inputs only)."""
+PREPROCESS_RESOLUTION_MIN = 20
+"""Its resolution in the last try (CoACD's documented range is 20-100)."""
 FINAL_SHARE = 0.25
 """Share of the budget kept for the last, coarsest try (it usually needs a few seconds, which a
 halving schedule would not leave it on a loaded machine)."""
@@ -67,8 +73,10 @@ class HullReport:
                     "(coarse; raise --time-budget for CoACD hulls)")
         if self.method == "coacd" and self.threshold is not None and self.threshold > requested:
             spent = sum(a["seconds"] for a in self.attempts if a["outcome"] == "timeout")
+            remesh = self.attempts[-1].get("preprocess_resolution", PREPROCESS_RESOLUTION)
+            coarser = f" and remeshing resolution {remesh}" if remesh != PREPROCESS_RESOLUTION else ""
             return (f"CoACD at threshold {requested:g} did not finish within the {self.budget_s:g} s budget "
-                    f"({spent:.0f} s spent on finer thresholds); used threshold {self.threshold:g} "
+                    f"({spent:.0f} s spent on finer thresholds); used threshold {self.threshold:g}{coarser} "
                     "(coarser hulls; raise --time-budget to keep the finer threshold)")
         return None
 
@@ -78,6 +86,16 @@ class HullReport:
 
 
 Progress = Callable[[str], None]
+
+
+def _preprocess_resolution(i: int, tries: int) -> int:
+    """CoACD's manifold-remeshing resolution for try i of `tries`: its default (50) first, down to
+    PREPROCESS_RESOLUTION_MIN for the last try (on a non-watertight CAD table the remeshing took
+    51 s of a 0.5-threshold run at 50 and 14 s at 20, so a coarser threshold alone saves little)."""
+    if tries <= 1 or i == 0:
+        return PREPROCESS_RESOLUTION
+    step = (PREPROCESS_RESOLUTION - PREPROCESS_RESOLUTION_MIN) / (tries - 1)
+    return int(round(PREPROCESS_RESOLUTION - step * i))
 
 
 def thresholds(start: float) -> list[float]:
@@ -240,8 +258,11 @@ def convex_hulls(
             continue
         params = {"threshold": t, "max_convex_hull": max_hulls, "preprocess_mode": preprocess,
                   "decimate": True, "max_ch_vertex": max_hull_vertices, "seed": seed}
+        entry: dict[str, Any] = {"threshold": t}
+        if preprocess != "off":
+            params["preprocess_resolution"] = entry["preprocess_resolution"] = _preprocess_resolution(i, len(ladder))
         attempt = run_attempt(work, params, timeout, label, progress)
-        report.attempts.append({"threshold": t, "seconds": round(attempt.seconds, 2), "timeout": round(timeout, 2),
+        report.attempts.append({**entry, "seconds": round(attempt.seconds, 2), "timeout": round(timeout, 2),
                                 "outcome": attempt.outcome, "peak_rss_mb": attempt.peak_rss_mb})
         if attempt.outcome == "ok":
             hulls = _to_hulls(attempt.parts)

@@ -75,27 +75,31 @@ def test_decimate_keeps_the_shape_and_always_reaches_the_cap():
 
 def test_coacd_over_budget_escalates_the_threshold_and_reports_it(monkeypatch, tmp_path, capsys):
     """Fine thresholds 'time out' (simulated: the real child is killed the same way, see below);
-    the first coarse enough one is kept, and the build says so."""
+    the first coarse enough one is kept, and the build says so. The mesh is not watertight, so
+    CoACD remeshes it, more coarsely at each try."""
     real = hulls.run_attempt
     tried = []
 
-    def slow_below_02(mesh, params, timeout, label, progress=None):
-        tried.append((params["threshold"], round(timeout, 1)))
-        if params["threshold"] < 0.2:
+    def slow_below_05(mesh, params, timeout, label, progress=None):
+        tried.append((params["threshold"], round(timeout, 1), params.get("preprocess_resolution")))
+        if params["threshold"] < 0.5:
             return Attempt("timeout", [], timeout)
         return real(mesh, params, timeout, label, progress)
 
-    monkeypatch.setattr(hulls, "run_attempt", slow_below_02)
-    src = save(step(), tmp_path / "step.obj")
+    monkeypatch.setattr(hulls, "run_attempt", slow_below_05)
+    open_step = step()
+    open_step.update_faces(np.arange(len(open_step.faces)) != 0)  # one triangle missing: not watertight
+    src = save(open_step, tmp_path / "step.obj")
     assert build("--source", src, "--up", "z", "--time-budget", "40", "--out", tmp_path / "o") == 0
-    assert [t for t, _ in tried] == [0.05, 0.1, 0.2]
+    assert [t for t, _, _ in tried] == [0.05, 0.1, 0.2, 0.5] and [r for _, _, r in tried] == [50, 40, 30, 20]
     assert tried[0][1] == pytest.approx(15, abs=0.5)  # half of the 3/4 not kept for the last try
     cfg = config(tmp_path / "o" / "imported" / "step")["collision"]
-    assert cfg["method"] == "coacd" and cfg["threshold"] == 0.2 and cfg["budget_s"] == 40
-    assert [a["outcome"] for a in cfg["attempts"]] == ["timeout", "timeout", "ok"]
+    assert cfg["method"] == "coacd" and cfg["threshold"] == 0.5 and cfg["budget_s"] == 40
+    assert [a["outcome"] for a in cfg["attempts"]] == ["timeout", "timeout", "timeout", "ok"]
+    assert [a["preprocess_resolution"] for a in cfg["attempts"]] == [50, 40, 30, 20]
     captured = capsys.readouterr()
     assert "CoACD at threshold 0.05 did not finish within the 40 s budget" in captured.err
-    assert "used threshold 0.2" in captured.err
+    assert "used threshold 0.5" in captured.err
     assert "CoACD threshold 0.05 stopped after" in captured.out  # progress line
 
 
