@@ -231,10 +231,24 @@ class StagesCfg:
 
 
 @dataclass(frozen=True)
+class KeepCheckpointsCfg:
+    """Which checkpoints a run keeps: each save deletes the others (a humanoid checkpoint is
+    40-70 MB). The newest is always kept; resuming falls back to the previous one when the
+    newest is unreadable, hence more than one by default."""
+
+    last: int = 3
+    """The newest `last` checkpoints (0 keeps every checkpoint)."""
+    every: int = 500
+    """Also each checkpoint whose iteration count (iteration + 1) is a multiple of `every`,
+    for later evaluation of the learning curve (0: none)."""
+
+
+@dataclass(frozen=True)
 class TrainCfg:
     max_iterations: int = 1000
     num_steps_per_env: int = 32
     save_interval: int = 50
+    keep_checkpoints: KeepCheckpointsCfg = KeepCheckpointsCfg()
     learning_rate: float = 0.0003
     schedule: Literal["fixed", "adaptive"] = "adaptive"
     desired_kl: float = 0.01
@@ -273,3 +287,67 @@ class RunConfig:
     origin: ConfigOrigin = field(default_factory=ConfigOrigin, compare=False, repr=False,
                                  metadata={"dump": False})
     """File and line of every value (errors found after loading still point at them)."""
+
+
+@dataclass(frozen=True)
+class Range:
+    """The values a numeric field accepts: from `low` to `high` (None: unbounded), the ends
+    excluded where `open_low` / `open_high`."""
+
+    low: float | None = None
+    high: float | None = None
+    open_low: bool = False
+    open_high: bool = False
+
+    def admits(self, value: float) -> bool:
+        if value != value:  # NaN
+            return False
+        if self.low is not None and (value <= self.low if self.open_low else value < self.low):
+            return False
+        return self.high is None or (value < self.high if self.open_high else value <= self.high)
+
+    def describe(self) -> str:
+        low, high = _number_text(self.low), _number_text(self.high)
+        if self.high is None:
+            return f"{'>' if self.open_low else '>='} {low}"
+        return f"in {'(' if self.open_low else '['}{low}, {high}{')' if self.open_high else ']'}"
+
+
+def _number_text(value: float | None) -> str:
+    if value is None:
+        return ""
+    return str(int(value)) if float(value).is_integer() else f"{value:g}"
+
+
+POSITIVE = Range(0, open_low=True)
+AT_LEAST_0, AT_LEAST_1 = Range(0), Range(1)
+FRACTION = Range(0, 1)
+VALUE_RANGES: dict[str, Range] = {
+    "seed": Range(0, 2**32 - 1),
+    "sim.num_envs": AT_LEAST_1, "sim.physics_dt": POSITIVE, "sim.substeps": AT_LEAST_1,
+    "sim.nthread": AT_LEAST_0, "sim.friction": AT_LEAST_0, "sim.solver_iterations": AT_LEAST_1,
+    "env.episode_length": AT_LEAST_1, "env.success_threshold": POSITIVE, "env.max_transition_steps": AT_LEAST_1,
+    "env.termination_height": AT_LEAST_0, "env.traj_fail_distance": POSITIVE, "env.mixed_init_prob": FRACTION,
+    "env.history_self": AT_LEAST_1, "env.history_env": AT_LEAST_1, "env.amp_obs_steps": AT_LEAST_1,
+    "env.height_map.grid": AT_LEAST_1, "env.height_map.spacing": POSITIVE,
+    "env.trajectory.num_samples": AT_LEAST_1, "env.trajectory.sample_dt": POSITIVE,
+    "env.trajectory.num_verts": Range(2), "env.trajectory.speed_min": AT_LEAST_0,
+    "env.trajectory.speed_max": AT_LEAST_0, "env.trajectory.sharp_turn_prob": FRACTION,
+    "env.follow_on_path_frac": FRACTION,
+    "eval.trials": AT_LEAST_1, "eval.num_envs": AT_LEAST_1, "eval.max_transition_steps": AT_LEAST_1,
+    "eval.confidence": Range(0, 1, open_low=True, open_high=True),
+    "train.max_iterations": AT_LEAST_1, "train.num_steps_per_env": AT_LEAST_1, "train.save_interval": AT_LEAST_1,
+    "train.keep_checkpoints.last": AT_LEAST_0, "train.keep_checkpoints.every": AT_LEAST_0,
+    "train.learning_rate": POSITIVE, "train.desired_kl": POSITIVE, "train.gamma": FRACTION, "train.lam": FRACTION,
+    "train.clip_param": POSITIVE, "train.entropy_coef": AT_LEAST_0, "train.value_loss_coef": AT_LEAST_0,
+    "train.num_learning_epochs": AT_LEAST_1, "train.num_mini_batches": AT_LEAST_1,
+    "train.max_grad_norm": POSITIVE, "train.torch_threads": AT_LEAST_0,
+    "train.stages.pretrain": AT_LEAST_0, "train.stages.fusion": AT_LEAST_0, "train.stages.joint": AT_LEAST_0,
+    "train.amp.task_reward_weight": AT_LEAST_0, "train.amp.style_reward_weight": AT_LEAST_0,
+    "train.amp.grad_penalty": AT_LEAST_0, "train.amp.logit_reg": AT_LEAST_0, "train.amp.weight_decay": AT_LEAST_0,
+    "train.amp.replay_size": AT_LEAST_1, "train.amp.batch_size": AT_LEAST_1,
+    "train.amp.learning_rate": POSITIVE, "train.amp.disc_updates": AT_LEAST_0,
+}
+"""Numeric fields whose type alone admits values a run cannot use (0 environments, a
+negative iteration count, a probability above 1), checked when a config is loaded
+(`detach.config`), so that such a value fails in one line before any run folder exists."""

@@ -3,6 +3,11 @@
 Error messages must name the file and line of the offending key, so loading returns, beside
 the plain data, a provenance map {key path: (file, line)}. Duplicate keys (which PyYAML
 silently overwrites) are errors here.
+
+Configs are small, and the loader refuses what is not: a file over `MAX_YAML_BYTES` (read no
+further than that, so /dev/zero or a 200 MB file costs nothing), more than `MAX_YAML_NODES`
+values once aliases are expanded (a 2 KB "billion laughs" alias bomb expands to billions),
+or nesting deeper than `MAX_YAML_DEPTH`. Each is one ConfigError line.
 """
 
 from __future__ import annotations
@@ -14,6 +19,14 @@ import yaml
 
 KeyPath = tuple[str | int, ...]
 Provenance = dict[KeyPath, tuple[str, int]]
+
+MAX_YAML_BYTES = 4 * 1024 * 1024
+"""The largest config file read (the biggest shipped one is a few KB)."""
+MAX_YAML_NODES = 200_000
+"""The most values (mappings, lists, scalars) one document may expand to, aliases counted
+at every use."""
+MAX_YAML_DEPTH = 64
+"""The deepest nesting of mappings and lists."""
 
 
 class ConfigError(Exception):
@@ -45,24 +58,54 @@ def load_yaml(file: Path) -> tuple[Any, Provenance]:
     if file.is_dir():
         raise ConfigError("expected a YAML file, found a directory", name)
     try:
-        text = file.read_text(encoding="utf-8")
+        with open(file, "rb") as f:
+            raw = f.read(MAX_YAML_BYTES + 1)
+        if len(raw) > MAX_YAML_BYTES:
+            raise ConfigError(f"file is larger than {MAX_YAML_BYTES // (1024 * 1024)} MB; expected a "
+                              f"config file of a few KB", name)
+        text = raw.decode("utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"cannot read file ({exc.__class__.__name__}: {exc})", name) from None
+    node = _compose(text, name)
+    if node is None:
+        raise ConfigError("file is empty (expected a mapping of config keys)", name)
+    prov: Provenance = {}
+    data = _convert(node, (), name, prov, _Budget(name))
+    return data, prov
+
+
+def _compose(text: str, name: str) -> yaml.Node | None:
+    """PyYAML's node graph (aliases still shared, so this step cannot blow up in size)."""
     try:
-        node = yaml.compose(text, Loader=yaml.SafeLoader)
+        return yaml.compose(text, Loader=yaml.SafeLoader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
         raise ConfigError(f"not valid YAML: {problem}", name,
                           mark.line + 1 if mark else None) from None
-    if node is None:
-        raise ConfigError("file is empty (expected a mapping of config keys)", name)
-    prov: Provenance = {}
-    data = _convert(node, (), name, prov)
-    return data, prov
+    except RecursionError:
+        raise ConfigError(f"nested more than {MAX_YAML_DEPTH} levels deep", name) from None
 
 
-def _convert(node: yaml.Node, path: KeyPath, file: str, prov: Provenance) -> Any:
+class _Budget:
+    """Counts the values a document expands to; refuses an alias bomb before memory grows."""
+
+    def __init__(self, file: str) -> None:
+        self.file, self.nodes = file, 0
+
+    def spend(self, node: yaml.Node, path: KeyPath) -> None:
+        self.nodes += 1
+        if self.nodes > MAX_YAML_NODES:
+            raise ConfigError(f"expands to more than {MAX_YAML_NODES} values (aliases counted at each "
+                              f"use); expected a config file, refused as a possible alias bomb",
+                              self.file, node.start_mark.line + 1)
+        if len(path) > MAX_YAML_DEPTH:
+            raise ConfigError(f"nested more than {MAX_YAML_DEPTH} levels deep", self.file,
+                              node.start_mark.line + 1, path[:3])
+
+
+def _convert(node: yaml.Node, path: KeyPath, file: str, prov: Provenance, budget: _Budget) -> Any:
+    budget.spend(node, path)
     prov[path] = (file, node.start_mark.line + 1)
     if isinstance(node, yaml.MappingNode):
         out: dict[Any, Any] = {}
@@ -74,10 +117,10 @@ def _convert(node: yaml.Node, path: KeyPath, file: str, prov: Provenance) -> Any
             if key in out:
                 raise ConfigError(f"duplicate key '{key}'", file,
                                   key_node.start_mark.line + 1, path)
-            out[key] = _convert(value_node, path + (key,), file, prov)
+            out[key] = _convert(value_node, path + (key,), file, prov, budget)
         return out
     if isinstance(node, yaml.SequenceNode):
-        return [_convert(item, path + (i,), file, prov) for i, item in enumerate(node.value)]
+        return [_convert(item, path + (i,), file, prov, budget) for i, item in enumerate(node.value)]
     return _scalar(node, path, file)
 
 
@@ -92,11 +135,27 @@ def _scalar(node: yaml.Node, path: KeyPath, file: str) -> Any:
 
 
 def parse_scalar(text: str) -> Any:
-    """Parse a command-line value as YAML (numbers, booleans, lists, null)."""
+    """Parse a command-line value as YAML (numbers, booleans, lists, null); text that is not
+    YAML stays a string. The same budget as a file: an alias bomb is a ConfigError."""
+    if not text.strip():
+        return ""
+    if len(text) > MAX_YAML_BYTES:
+        raise ConfigError(f"override value is longer than {MAX_YAML_BYTES} characters", "<command line>")
     try:
-        return yaml.safe_load(text) if text.strip() else ""
+        node = yaml.compose(text, Loader=yaml.SafeLoader)
     except yaml.YAMLError:
         return text
+    except RecursionError:
+        raise ConfigError(f"override value nested more than {MAX_YAML_DEPTH} levels deep",
+                          "<command line>") from None
+    if node is None:
+        return None
+    try:
+        return _convert(node, (), "<command line>", {}, _Budget("<command line>"))
+    except ConfigError as exc:
+        if "expands to more than" in str(exc) or "nested more than" in str(exc):
+            raise
+        return yaml.safe_load(text)  # e.g. a mapping with non-scalar keys: plain YAML semantics
 
 
 class ConfigOrigin:

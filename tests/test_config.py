@@ -276,3 +276,23 @@ def test_cuda_request_on_a_cpu_machine_is_a_user_error(
         assert code == 0
     else:
         assert code == 2 and "CUDA is not available" in capsys.readouterr().err
+
+
+def test_values_out_of_range_name_their_file_and_line(tmp_path: Path) -> None:
+    model = tmp_path / "tiny.yaml"
+    model.write_text(textwrap.dedent("""\
+        extends: {models}/mlp.yaml
+        train:
+          max_iterations: 0
+        """).format(models=ROOT / "configs" / "models"))
+    with pytest.raises(ConfigError, match=r"tiny.yaml:3: train.max_iterations: expected a value >= 1, found 0"):
+        resolve(ROOT / "configs/tasks/follow.yaml", str(model))
+    with pytest.raises(ConfigError, match=r"<command line>: seed: expected a value in \[0, 4294967295\], found -1"):
+        resolve(ROOT / "configs/tasks/follow.yaml", "mlp", seed=-1)
+
+
+def test_checkpoint_retention_has_a_stated_default() -> None:
+    keep = resolve(ROOT / "configs/tasks/follow.yaml", "mlp").train.keep_checkpoints
+    assert (keep.last, keep.every) == (3, 500)
+    keep = resolve(ROOT / "configs/tasks/follow.yaml", "mlp", ["train.keep_checkpoints.last=0"]).train.keep_checkpoints
+    assert keep.last == 0
