@@ -7,12 +7,16 @@ tracebacks are reserved for bugs (and go to the run's stdout.log).
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import threading
+import time
+import typing
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 from detach.config import ConfigError, dump, resolve
-from detach.run_contract import LIVE_STATES
+from detach.config_schema import RunConfig
 from detach.runs.folder import RunFolder, run_folder_name
 
 EXIT_USAGE = 2
@@ -23,7 +27,7 @@ Run the DETACH study: train a model on a task, evaluate it, resume it, sweep a g
   detach-run configs/tasks/lh1.yaml --model detach            train, then evaluate
   detach-run configs/tasks/lh3.yaml --model ablation_a1 --dry-run
   detach-run configs/tasks/follow.yaml --model mlp env.character=puppet train.max_iterations=50
-  detach-run --resume runs/20261123-120000-lh1-detach-s0 [train.max_iterations=2000]
+  detach-run --resume runs/20261123-120000-lh1-detach-s0 [train.max_iterations=2000] [--dry-run]
   detach-run --eval runs/20261123-120000-lh1-detach-s0 --task configs/tasks/lh2.yaml
   detach-run --sweep configs/sweeps/table3_ablation.yaml --quick --jobs 2
   detach-run list                                             table of runs
@@ -38,8 +42,34 @@ status.json, stdout.log, log.mcap, checkpoints/ and eval.json.
 """
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a bad argument is one `ConfigError` line (exit code 2), not usage + error."""
+
+    def error(self, message: str) -> typing.NoReturn:
+        raise ConfigError(f"{message} (see {self.prog} --help)")
+
+
+def _int_in(low: int, high: int | None = None) -> Callable[[str], int]:
+    """argparse type: an integer in [low, high], named in the error."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, found '{text}'") from None
+        if value < low or (high is not None and value > high):
+            bound = f">= {low}" if high is None else f"in [{low}, {high}]"
+            raise argparse.ArgumentTypeError(f"expected an integer {bound}, found {value}")
+        return value
+    parse.__name__ = "integer"
+    return parse
+
+
+MAX_SEED = 2**32 - 1
+"""NumPy's seeds are 32-bit."""
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="detach-run", description=DESCRIPTION,
         formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("task", metavar="TASK_YAML", nargs="?",
@@ -49,14 +79,15 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--model", default="detach",
                         help="model name in configs/models/ or a model YAML path "
                              "(default: detach)")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    parser.add_argument("--seed", type=_int_in(0, MAX_SEED), default=0,
+                        help="random seed, 0 to 2^32-1 (default: 0)")
     parser.add_argument("--device", default="cpu",
                         help="torch device: cpu, cuda or cuda:N (default: cpu)")
     parser.add_argument("--out", type=Path, default=Path("runs"),
                         help="parent folder of run folders (default: runs/)")
     parser.add_argument("--dry-run", action="store_true",
                         help="resolve and print the config and the run folder it would "
-                             "create, then exit")
+                             "create, then exit (with --resume: the config it would continue with)")
     mode = parser.add_mutually_exclusive_group()
     mode.add_argument("--resume", type=Path, metavar="RUN_DIR",
                       help="continue an interrupted or failed run from its latest checkpoint")
@@ -71,13 +102,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--eval-on", action="append", type=Path, default=[],
                         metavar="TASK_YAML",
                         help="after training, also evaluate on this task (repeatable)")
-    parser.add_argument("--trials", type=int, default=None,
+    parser.add_argument("--trials", type=_int_in(1), default=None,
                         help="evaluation episodes (default: eval.trials of the config, 100)")
     parser.add_argument("--no-eval", action="store_true",
                         help="train only; skip the evaluation at the end")
     parser.add_argument("--quick", action="store_true",
                         help="with --sweep: use the sweep's quick preset (CPU smoke run)")
-    parser.add_argument("--jobs", type=int, default=1,
+    parser.add_argument("--jobs", type=_int_in(1), default=1,
                         help="with --sweep: cells run in parallel (default: 1)")
     parser.add_argument("--launcher", choices=["local", "ray"], default="local",
                         help="with --sweep: a local worker pool, or Ray tasks (the cluster "
@@ -87,7 +118,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def build_list_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="detach-run list",
+    parser = _Parser(prog="detach-run list",
                                      description="Print a table of the runs in a folder.")
     parser.add_argument("runs", type=Path, nargs="?", default=Path("runs"),
                         help="runs folder (default: runs/)")
@@ -95,7 +126,7 @@ def build_list_parser() -> argparse.ArgumentParser:
 
 
 def build_table_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="detach-run table",
         description="Print the paper's table (Markdown) from eval.json files and write CSV "
                     "and LaTeX beside it.")
@@ -131,7 +162,28 @@ def _fail(exc: Exception) -> int:
     return EXIT_USAGE
 
 
+EXIT_INTERRUPTED = 130
+
+
+def _interrupt(signum: int, _frame: object) -> None:
+    raise KeyboardInterrupt(signal.Signals(signum).name)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command; SIGTERM anywhere (start-up included) ends it like Ctrl-C: exit 130."""
+    if threading.current_thread() is not threading.main_thread():
+        return _main(argv)
+    previous = signal.signal(signal.SIGTERM, _interrupt)
+    try:
+        return _main(argv)
+    except KeyboardInterrupt as exc:
+        print(f"detach-run: interrupted ({str(exc) or 'SIGINT'})", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
         if argv and argv[0] == "list":
@@ -181,9 +233,13 @@ def _train(args: argparse.Namespace) -> int:
     from detach.runs.job import run_job
     from detach.runs.session import train_and_evaluate
 
-    run = RunFolder.create(args.out, cfg)
-    if args.cell:
-        run.set_state("queued", cell=args.cell)
+    try:
+        run = RunFolder.create(args.out, cfg)
+        if args.cell:
+            run.set_state("queued", cell=args.cell)
+    except OSError as exc:
+        raise ConfigError(f"cannot create a run folder under --out {args.out} "
+                          f"({exc.strerror or exc}); expected a writable folder") from None
     print(f"run folder: {run.path}")
     code = run_job(run, lambda r: train_and_evaluate(
         r, resume=False, eval_tasks=args.eval_on, trials=args.trials, evaluate=not args.no_eval))
@@ -198,61 +254,92 @@ def _resume(args: argparse.Namespace) -> int:
     if run.latest_checkpoint() is None:
         raise ConfigError("run has no checkpoint to resume from", str(args.resume))
     _refuse_if_alive(run)
+    cfg = run.config()  # validates the stored config as a user error, not a traceback
+    checkpoint = _resume_checkpoint(run, cfg, rename=not args.dry_run)
+    new = _extended_config(run, args.overrides, checkpoint) if args.overrides else cfg
+    if args.dry_run:
+        sys.stdout.write(dump(new))
+        print(f"# would resume {run.path} from {checkpoint.name}")
+        return 0
     if args.overrides:
-        _extend_config(run, args.overrides)
-    run.config()  # validates the stored config as a user error, not a traceback
+        from detach.runs.folder import atomic_write_text
+
+        atomic_write_text(run.config_path, dump(new))
     from detach.runs.job import run_job
     from detach.runs.session import train_and_evaluate
 
-    print(f"resuming {run.path} from {run.latest_checkpoint().name}")
+    print(f"resuming {run.path} from {checkpoint.name}")
     return run_job(run, lambda r: train_and_evaluate(
         r, resume=True, eval_tasks=args.eval_on, trials=args.trials, evaluate=not args.no_eval,
-        device=args.device))
+        device=args.device, checkpoint=checkpoint))
 
 
-def _alive_pid(run: RunFolder) -> int | None:
-    """The pid of a queued/running run's process if it is still alive (else None: a killed
-    run leaves a stale pid behind)."""
-    import os
+def _resume_checkpoint(run: RunFolder, cfg: RunConfig, rename: bool = True) -> Path:
+    """The newest checkpoint that reads back whole and is of the run's model. Newer files that
+    do not read back (truncated, corrupt) are renamed *.corrupt: the resumed run writes
+    those iterations again, and no reader should pick the broken file meanwhile."""
+    from detach.train.checkpoints import check_model, read_checkpoint
 
-    try:
-        status = run.status()
-    except (OSError, ValueError):
-        return None
-    pid = status.pid
-    if status.state not in LIVE_STATES or not pid or pid == os.getpid():
-        return None
-    try:
-        os.kill(int(pid), 0)
-    except ProcessLookupError:
-        return None
-    except PermissionError:
-        pass
-    return int(pid)
+    checkpoint = run.usable_checkpoint()
+    if checkpoint is None:
+        raise ConfigError("no checkpoint of the run reads back whole (all truncated or corrupt)",
+                          str(run.checkpoints))
+    check_model(read_checkpoint(checkpoint), checkpoint, cfg.model_name, cfg.model.kind)
+    for newer in run.checkpoint_files():
+        if newer == checkpoint or not rename:
+            break
+        newer.rename(newer.with_name(newer.name + ".corrupt"))
+        print(f"renamed the unreadable {newer.name} to {newer.name}.corrupt")
+    return checkpoint
 
 
 def _refuse_if_alive(run: RunFolder) -> None:
-    """Two processes training one run folder would corrupt it."""
-    pid = _alive_pid(run)
-    if pid is not None:
-        raise ConfigError(f"run is still {run.status().state} (pid {pid}); stop it first "
-                          f"(kill -TERM {pid}) and resume when it is interrupted", str(run.path))
+    """Two processes training one run folder would corrupt it. A pid of this host is looked
+    up; one of another host (shared storage) is trusted while its heartbeat is fresh."""
+    from detach.runs.folder import STALE_AFTER_S, this_host
+
+    if not run.owner_alive():
+        return
+    status = run.status()
+    if status.host and status.host != this_host():
+        raise ConfigError(f"run is still {status.state} on host {status.host} (pid {status.pid}, status "
+                          f"updated {time.time() - (status.updated or 0):.0f} s ago); stop it there, or "
+                          f"resume once its status is {STALE_AFTER_S:.0f} s old", str(run.path))
+    raise ConfigError(f"run is still {status.state} (pid {status.pid}); stop it first "
+                      f"(kill -TERM {status.pid}) and resume when it is interrupted", str(run.path))
 
 
-RESUME_OVERRIDABLE = ("train.max_iterations", "train.save_interval", "eval.")
+RESUME_OVERRIDABLE = ("train.max_iterations", "train.save_interval", "train.keep_checkpoints",
+                      "train.stages.", "eval.")
 
 
-def _extend_config(run: RunFolder, overrides: Sequence[str]) -> None:
-    """Apply overrides that cannot invalidate the checkpoints (e.g. train longer)."""
+def _extended_config(run: RunFolder, overrides: Sequence[str], checkpoint: Path) -> RunConfig:
+    """The run's config with overrides that cannot invalidate the checkpoints (train longer).
+
+    The past never changes: a longer run extends its last stage (DETACH's schedule is
+    written out in train.stages, so it is no longer rescaled), and a schedule stated with
+    train.stages.* must give every completed iteration the stage it was trained in."""
+    import dataclasses
+
     from detach.config import load_run_config
-    from detach.runs.folder import atomic_write_text
+    from detach.run_contract import checkpoint_iteration
+    from detach.train.schedule import resumed_stages
 
     for text in overrides:
         key = text.split("=", 1)[0]
         if not key.startswith(RESUME_OVERRIDABLE):
             raise ConfigError(f"cannot change '{key}' when resuming; only "
                               f"{', '.join(RESUME_OVERRIDABLE)}* may change")
-    atomic_write_text(run.config_path, dump(load_run_config(run.config_path, overrides)))
+    old, new = run.config(), load_run_config(run.config_path, overrides)
+    completed = checkpoint_iteration(checkpoint.name)
+    if new.train.max_iterations <= completed:
+        raise ConfigError(f"train.max_iterations: expected more than the {completed + 1} iterations the "
+                          f"run has completed, found {new.train.max_iterations}")
+    stated = any(text.split("=", 1)[0].startswith("train.stages.") for text in overrides)
+    stages = resumed_stages(old, new, completed, stated)
+    if stages is not None:
+        new = dataclasses.replace(new, train=dataclasses.replace(new.train, stages=stages))
+    return new
 
 
 def _evaluate(args: argparse.Namespace) -> int:
@@ -269,7 +356,12 @@ def _evaluate(args: argparse.Namespace) -> int:
         raise ConfigError("task file not found (--task)", str(args.eval_task))
     from detach.runs.session import evaluate_run
 
-    live = _alive_pid(run) is not None
+    if checkpoint is not None:
+        from detach.train.checkpoints import check_model, read_checkpoint
+
+        cfg = run.config()
+        check_model(read_checkpoint(checkpoint), checkpoint, cfg.model_name, cfg.model.kind)
+    live = run.owner_alive()
     if live:
         print("the run is still training: its log.mcap is left alone (no episode recorded)")
     path = evaluate_run(run, args.eval_task, checkpoint, args.trials, device=args.device,

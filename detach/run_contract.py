@@ -12,18 +12,25 @@ project: any layer may read it. docs/ARCHITECTURE.md ("Run folder") describes it
         log.mcap             /metrics `MetricsMessage` per iteration, /scene `SceneMessage`,
                              /episode/bodies `EpisodeFrame` per recorded frame, /tf (Foxglove)
         checkpoints/model_<iteration>.pt
+        checkpoints/amp_replay_<iteration>.pt   AMP replay buffer of the newest checkpoint
         eval.json            `EvalResult` on the run's own task; eval_<task>.json on another
 
+JSON, YAML and checkpoint files are written through `atomic_writer` (whole or not at all, with
+the user's umask); stdout.log and log.mcap grow by appending and read up to a crash.
 `from_json` raises `ContractError` (a ValueError with one line saying what is wrong) for a
 message that does not follow the format, so readers can skip or report it.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
+import os
 import re
+import secrets
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from pathlib import Path
+from typing import IO, Any, Iterator
 
 CONFIG_FILE = "config.yaml"
 STATUS_FILE = "status.json"
@@ -60,6 +67,69 @@ def checkpoint_iteration(name: str) -> int | None:
     """Iteration of a checkpoint file name, None if the name is not one."""
     m = _CHECKPOINT.match(name)
     return int(m.group(1)) if m else None
+
+
+REPLAY_PREFIX = "amp_replay_"
+_REPLAY = re.compile(r"^amp_replay_(\d+)\.pt$")
+
+
+def replay_file(iteration: int) -> str:
+    """File name (in checkpoints/) of the AMP replay buffer saved with `checkpoint_file(iteration)`.
+
+    A sidecar, not part of the checkpoint: the buffer holds up to `train.amp.replay_size`
+    windows (~350 MB for the humanoid), so only the newest checkpoint keeps one."""
+    return f"{REPLAY_PREFIX}{int(iteration)}.pt"
+
+
+def replay_iteration(name: str) -> int | None:
+    """Iteration of a replay sidecar file name, None if the name is not one."""
+    m = _REPLAY.match(name)
+    return int(m.group(1)) if m else None
+
+
+TEMP_SUFFIX = ".tmp"
+"""Files being written are `.<name>.<pid>.<random>.tmp` beside their target: readers skip
+them, and a run cleans up the ones a killed process left behind (`is_temp_file`)."""
+
+
+def is_temp_file(name: str) -> bool:
+    return name.startswith(".") and name.endswith(TEMP_SUFFIX)
+
+
+@contextlib.contextmanager
+def atomic_writer(path: Path, binary: bool = True) -> Iterator[IO[Any]]:
+    """Open a temporary file that replaces `path` when the block ends without an error.
+
+    Readers see the old file or the complete new one, never a part: the data is fsynced
+    before the rename and the folder after it, so a power cut cannot leave an empty file
+    under the final name either. The file gets the user's umask (0666 & ~umask, unlike
+    tempfile's 0600), so a dashboard run by another user can read it. On any failure (a
+    full disk, a signal) the temporary file is removed and the error re-raised.
+    """
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}{TEMP_SUFFIX}")
+    f = open(tmp, "xb") if binary else open(tmp, "x", encoding="utf-8")  # 0666 & ~umask
+    try:
+        with f:
+            yield f
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    fsync_folder(path.parent)
+
+
+def fsync_folder(folder: Path) -> None:
+    """Make a rename or unlink in `folder` durable (best effort: not every filesystem can)."""
+    with contextlib.suppress(OSError):
+        fd = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
 
 
 def eval_file(task: str | None = None) -> str:
@@ -116,6 +186,9 @@ class Status:
     error: str | None = None
     cell: str | None = None
     """The sweep cell this run belongs to (`<sweep>/<task>/<model>/s<seed>`), if any."""
+    host: str | None = None
+    """Host name of the machine whose process `pid` is: on a runs folder shared by several
+    machines, only that machine can tell whether the process is alive."""
 
     def to_json(self) -> dict[str, Any]:
         return {k: v for k, v in asdict(self).items() if v is not None or k in ("error", "started", "pid")}
@@ -130,7 +203,8 @@ class Status:
                    started=_number(data, "started", STATUS_FILE, optional=True),
                    updated=_number(data, "updated", STATUS_FILE, optional=True),
                    error=_need(data, "error", str, STATUS_FILE, optional=True),
-                   cell=_need(data, "cell", str, STATUS_FILE, optional=True))
+                   cell=_need(data, "cell", str, STATUS_FILE, optional=True),
+                   host=_need(data, "host", str, STATUS_FILE, optional=True))
 
 
 # ------------------------------------------------------------------------------- log.mcap
@@ -237,8 +311,10 @@ def _vec(data: Any, key: str, n: int, where: str) -> list[float]:
 
 @dataclass
 class EpisodeFrame:
-    """/episode/bodies: one frame of a recorded episode. `to_json` writes "episode" first
-    (readers may find a frame's episode without parsing the whole message)."""
+    """/episode/bodies: one frame of a recorded episode. `to_json` writes "episode" and
+    "trial" first (readers may find a frame's episode without parsing the whole message).
+    A recorded episode is (episode, trial): an evaluation records every trial under the
+    checkpoint's iteration, trial 0, 1, ... in the order the trials started."""
 
     episode: int
     frame: int
@@ -251,9 +327,11 @@ class EpisodeFrame:
     """Dynamic objects: {"name", "pos", "quat"}."""
     subtask: int = 0
     skill: str = ""
+    trial: int = 0
 
     def to_json(self) -> dict[str, Any]:
-        return {"episode": int(self.episode), "frame": int(self.frame), "time": float(self.time),
+        return {"episode": int(self.episode), "trial": int(self.trial), "frame": int(self.frame),
+                "time": float(self.time),
                 "bodies": list(self.bodies),
                 "pos": [[round(float(v), 5) for v in p] for p in self.pos],
                 "quat": [[round(float(v), 5) for v in q] for q in self.quat],

@@ -28,13 +28,16 @@ class Episode:
     skill: list[str]
     objects: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     """Dynamic object name -> ([F, 3] positions, [F, 4] wxyz), carried forward over gaps."""
+    trial: int = 0
+    """Which trial of the episode number (an evaluation records all of its trials)."""
 
     @property
     def num_frames(self) -> int:
         return len(self.times)
 
 
-def episode_from_frames(number: int, frames: list[dict[str, Any]]) -> Episode | None:
+def episode_from_frames(number: int, frames: list[dict[str, Any]], trial: int = 0
+                        ) -> Episode | None:
     """Stack one episode's /episode/bodies messages (file order) into arrays.
 
     A log can hold the same episode number more than once (each evaluation of a run
@@ -72,7 +75,7 @@ def episode_from_frames(number: int, frames: list[dict[str, Any]]) -> Episode | 
         objects[name] = (_fill_forward(p), _fill_forward(q))
     return Episode(number, bodies, times, pos, quat,
                    np.asarray([int(m.get("subtask", 0)) for m in good]),
-                   [str(m.get("skill", "")) for m in good], objects)
+                   [str(m.get("skill", "")) for m in good], objects, trial)
 
 
 def _fill_forward(a: np.ndarray) -> np.ndarray:

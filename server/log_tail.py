@@ -40,8 +40,13 @@ _REC = struct.Struct("<BQ")
 _MSG_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
 _DATA_AT = _REC.size + _MSG_HEAD.size
 """Offset of a message's payload from the start of its record."""
-_EPISODE_RE = re.compile(rb'\{"episode":(-?\d+)')
-"""`EpisodeFrame.to_json` writes "episode" first: a frame's episode without parsing it."""
+_EPISODE_RE = re.compile(rb'\{"episode":(-?\d+)(?:,"trial":(\d+))?(?:,"frame":(\d+))?')
+"""`EpisodeFrame.to_json` writes "episode", "trial" and "frame" first: a frame's recorded
+episode without parsing it (logs of earlier versions have no trial: trial 0)."""
+EpisodeKey = tuple[int, int]
+"""(episode, trial) of a recorded episode: an evaluation records its trials under one episode
+number (the checkpoint's iteration)."""
+NO_EPISODE: EpisodeKey = (-1, 0)
 BODIES, METRICS, SCENE = EPISODE_TOPIC, METRICS_TOPIC, SCENE_TOPIC
 
 
@@ -56,8 +61,10 @@ class ChunkRef:
     uncompressed_size: int
     bodies: list[int]
     """Offsets of the /episode/bodies message records inside the uncompressed records."""
-    episodes: list[int] | None = None
-    """Episode number of each message in `bodies`, once the chunk was decoded."""
+    episodes: list[EpisodeKey] | None = None
+    """(episode, trial) of each message in `bodies`, once the chunk was decoded."""
+    frames: list[int] | None = None
+    """Frame number of each message in `bodies` (-1 if unknown), with `episodes`."""
 
 
 _local = threading.local()
@@ -319,23 +326,30 @@ class LogTail:
             self._cache.popitem(last=False)
         return data
 
-    def _episodes_of(self, chunk: ChunkRef) -> list[int]:
+    def _episodes_of(self, chunk: ChunkRef) -> list[EpisodeKey]:
         if chunk.episodes is None:
             try:
                 records = self._records(chunk)
             except Exception:  # noqa: BLE001 - an undecodable chunk holds no episode
-                chunk.episodes = [-1] * len(chunk.bodies)
+                chunk.episodes, chunk.frames = [NO_EPISODE] * len(chunk.bodies), [-1] * len(chunk.bodies)
                 return chunk.episodes
-            eps = []
+            eps, frames = [], []
             for at in chunk.bodies:
                 m = _EPISODE_RE.match(records, at + _DATA_AT)
-                if m is None:  # not our writer's key order: parse the message
+                if m is None or m.group(3) is None:  # not our writer's key order: parse it
                     msg = self._payload(records, at)
-                    eps.append(int(msg.get("episode", -1)) if msg else -1)
+                    eps.append(_key(msg) if msg else NO_EPISODE)
+                    frame = msg.get("frame", -1) if msg else -1
+                    frames.append(frame if isinstance(frame, int) else -1)
                 else:
-                    eps.append(int(m.group(1)))
-            chunk.episodes = eps
+                    eps.append((int(m.group(1)), int(m.group(2) or 0)))
+                    frames.append(int(m.group(3)))
+            chunk.episodes, chunk.frames = eps, frames
         return chunk.episodes
+
+    def _starts_in(self, chunk: ChunkRef, key: EpisodeKey) -> bool:
+        """Whether `chunk` holds frame 0 of the recorded episode `key`."""
+        return any(k == key and f == 0 for k, f in zip(self._episodes_of(chunk), chunk.frames or []))
 
     @staticmethod
     def _payload(records: bytes, at: int) -> dict[str, Any] | None:
@@ -346,56 +360,76 @@ class LogTail:
             return None
         return msg if isinstance(msg, dict) else None
 
-    def episode_numbers(self) -> list[int]:
-        """All episode numbers in the file (decodes each frame chunk once, then cached)."""
+    def episode_keys(self) -> list[EpisodeKey]:
+        """Every recorded (episode, trial) in the file (decodes each frame chunk once, then
+        cached)."""
         with self._lock:
-            found: set[int] = set()
+            found: set[EpisodeKey] = set()
             for chunk in self.chunks:
                 found.update(self._episodes_of(chunk))
-            found.discard(-1)
+            found.discard(NO_EPISODE)
             return sorted(found)
 
-    def newest_episode(self) -> int | None:
-        """Episode of the last frame in the file; decodes only the last frame chunk."""
+    def episode_numbers(self) -> list[int]:
+        """The episode numbers in the file (each may hold several trials)."""
+        return sorted({e for e, _t in self.episode_keys()})
+
+    def newest_episode(self) -> EpisodeKey | None:
+        """The recorded episode of the last frame in the file; decodes only the last frame
+        chunk."""
         with self._lock:
             for chunk in reversed(self.chunks):
-                eps = [e for e in self._episodes_of(chunk) if e >= 0]
+                eps = [e for e in self._episodes_of(chunk) if e != NO_EPISODE]
                 if eps:
                     return eps[-1]
             return None
 
-    def load_episode(self, number: int | None = None) -> Episode | None:
-        """Frames of episode `number` (default: the newest) as arrays.
+    def load_episode(self, key: EpisodeKey | int | None = None) -> Episode | None:
+        """Frames of the recorded episode `key` ((episode, trial), or an episode number for
+        its trial 0; default: the newest) as arrays.
 
         The newest episode is found by walking back from the end of the file, so a long log
         costs only the chunks of that episode; any other episode needs the full index
         (built once per chunk and cached).
         """
         with self._lock:
-            if number is None:
-                number = self.newest_episode()
-                if number is None:
+            if key is None:
+                key = self.newest_episode()
+                if key is None:
                     return None
+                # Walk back to the chunk with its frame 0. Trials recorded side by side share
+                # chunks, and a chunk may hold no frame of this one (cut between envs), so a
+                # chunk without it ends the walk only once no frame of its number is in it.
                 chunks, seen = [], False
                 for chunk in reversed(self.chunks):
-                    has = number in self._episodes_of(chunk)
-                    if has:
+                    keys = self._episodes_of(chunk)
+                    if key in keys:
                         chunks.append(chunk)
                         seen = True
-                    elif seen:
+                        if self._starts_in(chunk, key):
+                            break
+                    elif seen and all(k[0] != key[0] for k in keys):
                         break
                 chunks.reverse()
             else:
-                chunks = [c for c in self.chunks if number in self._episodes_of(c)]
+                key = (key, 0) if isinstance(key, int) else tuple(key)
+                chunks = [c for c in self.chunks if key in self._episodes_of(c)]
             frames = []
             for chunk in chunks:
                 records = self._records(chunk)
                 for at, ep in zip(chunk.bodies, chunk.episodes or []):
-                    if ep == number:
+                    if ep == key:
                         msg = self._payload(records, at)
                         if msg is not None:
                             frames.append(msg)
-            return episode_from_frames(number, frames) if frames else None
+            return episode_from_frames(key[0], frames, trial=key[1]) if frames else None
+
+
+def _key(msg: dict[str, Any]) -> EpisodeKey:
+    try:
+        return int(msg.get("episode", -1)), int(msg.get("trial", 0) or 0)
+    except (TypeError, ValueError):
+        return NO_EPISODE
 
 
 def closed_cleanly(path: Path) -> bool | None:

@@ -14,6 +14,7 @@ from typing import Any
 import viser
 
 from server.episode import Episode
+from server.log_tail import EpisodeKey
 from server.replay import Replay
 from server.scene_view import SceneView, check_episode
 from server.session import Panel, Session, chosen, is_quiet, quietly
@@ -26,7 +27,18 @@ NO_RUNS = "(no runs)"
 def _describe(ep: Episode | None) -> str:
     if ep is None:
         return "no episode recorded in this run's log"
-    return f"episode {ep.number}: {ep.num_frames} frames, {ep.times[-1] - ep.times[0]:.1f} s"
+    trial = f", trial {ep.trial}" if ep.trial else ""
+    return (f"episode {ep.number}{trial}: {ep.num_frames} frames, "
+            f"{ep.times[-1] - ep.times[0]:.1f} s")
+
+
+def episode_options(keys: list[EpisodeKey]) -> dict[str, EpisodeKey]:
+    """Dropdown text -> (episode, trial): '300' for an episode recorded once, '300 · trial 4'
+    for the trials of one evaluation (each trial is an episode of its own)."""
+    trials: dict[int, int] = {}
+    for episode, _trial in keys:
+        trials[episode] = trials.get(episode, 0) + 1
+    return {(f"{e} · trial {t}" if trials[e] > 1 or t else str(e)): (e, t) for e, t in keys}
 
 
 def replay_panel(s: Session) -> Panel:
@@ -50,7 +62,7 @@ def replay_panel(s: Session) -> Panel:
                              "beside the planned one (blue)")
     status = gui.add_markdown("")
     shown: dict[str, Any] = {"a": None, "b": None, "log": {}, "scene": {}, "episode": None,
-                             "problem": None, "ids": ()}
+                             "problem": None, "ids": (), "keys": {}}
 
     def draw(slot: str, ep: Episode, i: int) -> None:
         scene = view.a if slot == "a" else view.b
@@ -78,7 +90,7 @@ def replay_panel(s: Session) -> Panel:
         if choice == NONE:
             return None  # the log has no episode
         try:
-            ep = reader.log.load_episode(None if choice in (None, NEWEST) else int(choice))
+            ep = reader.log.load_episode(shown["keys"].get(choice))  # None: the newest
             if ep is not None:
                 check_episode(ep)
             return ep
@@ -98,7 +110,7 @@ def replay_panel(s: Session) -> Panel:
         live = bool(run in s.infos and s.infos[run].live)
         if slot == "a":
             replay.player.hold_at_end = live and choice == NEWEST
-            shown["episode"] = None if ep is None else ep.number
+            shown["episode"] = None if ep is None else (ep.number, ep.trial)
         if ep is None:
             scene.hide_character()
             replay.set_episode(slot, None)
@@ -109,6 +121,11 @@ def replay_panel(s: Session) -> Panel:
             replay.set_episode(slot, ep, keep_time)
         if slot == "a":
             describe(ep)
+
+    def list_episodes(log: Any) -> tuple[str, ...]:
+        """The Episode dropdown's options for a log (and the keys they stand for)."""
+        shown["keys"] = episode_options(log.episode_keys())
+        return (NEWEST, *shown["keys"]) if shown["keys"] else (NONE,)
 
     def episode_dd_options() -> tuple[str, ...]:
         return tuple(episode_dd.options)
@@ -142,9 +159,8 @@ def replay_panel(s: Session) -> Panel:
             shown["scene"][slot] = log.scene
             view.show(slot, log.scene, reader.path)
             if slot == "a":
-                numbers = log.episode_numbers()
-                options = (NEWEST, *map(str, numbers)) if numbers else (NONE,)
-                quietly(quiet, episode_dd, options=options, value=options[0])
+                quietly(quiet, episode_dd, options=(options := list_episodes(log)),
+                        value=options[0])
             open_episode(slot)
 
     @run_dd.on_update
@@ -238,8 +254,7 @@ def replay_panel(s: Session) -> Panel:
             open_run(slot, run)  # the scene arrived (or an evaluation logged another one)
             return
         if slot == "a":
-            numbers = log.episode_numbers()
-            options = (NEWEST, *map(str, numbers)) if numbers else (NONE,)
+            options = list_episodes(log)
             if tuple(episode_dd.options) != options:
                 value = episode_dd.value if episode_dd.value in options else options[0]
                 quietly(quiet, episode_dd, options=options, value=value)
@@ -248,7 +263,7 @@ def replay_panel(s: Session) -> Panel:
             with replay.lock:
                 current = replay.episodes.get(slot)
                 open_episode(slot, keep_time=current is not None
-                             and log.newest_episode() == current.number)
+                             and log.newest_episode() == (current.number, current.trial))
 
     def refresh(changed: set[str]) -> None:
         update_options()

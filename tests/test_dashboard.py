@@ -70,7 +70,8 @@ def test_tail_matches_the_reference_reader(tmp_path: Path) -> None:
     assert tail.refresh() and tail.complete and tail.problem is None
     assert tail.metrics == read_metrics(path)
     assert tail.scene == {"objects": [], "trajectories": {}, "targets": []}
-    assert tail.episode_numbers() == [0, 1, 2] and tail.newest_episode() == 2
+    assert tail.episode_numbers() == [0, 1, 2] and tail.newest_episode() == (2, 0)
+    assert tail.episode_keys() == [(0, 0), (1, 0), (2, 0)]
     for n in (0, 1, 2):
         _same_episode(tail, path, n)
     assert tail.load_episode().number == 2
@@ -136,6 +137,31 @@ def test_tail_skips_frame_chunks_until_an_episode_is_needed(tmp_path: Path, monk
     calls.clear()
     assert tail.load_episode().num_frames == 40
     assert len(calls) <= frame_chunks / 6 + 2, "the newest episode needs only its own chunks"
+
+
+def test_trials_recorded_side_by_side_are_episodes_of_their_own(tmp_path: Path) -> None:
+    """An evaluation records all its envs at once: frames of several trials interleave and a
+    chunk may hold no frame of one of them (cut between envs); the newest trial still loads
+    whole, from its frame 0, and every trial is listed."""
+    path = tmp_path / "log.mcap"
+    lengths = {0: 9, 1: 14, 2: 5, 3: 11}
+    with RunLogWriter(path, flush_every=3) as log:  # tiny chunks: many cut between envs
+        for f in range(14):
+            for trial, n in lengths.items():
+                if f < n:
+                    log.log_frame(EpisodeFrame(300, f, f / 30, BODIES, [[0.1 * f, trial, 0.9]] * 2,
+                                               [[1, 0, 0, 0]] * 2, trial=trial))
+    tail = LogTail(path)
+    tail.refresh()
+    assert tail.episode_keys() == [(300, t) for t in range(4)] and tail.episode_numbers() == [300]
+    assert tail.newest_episode() == (300, 1)
+    newest = tail.load_episode()
+    assert (newest.number, newest.trial, newest.num_frames) == (300, 1, 14)
+    np.testing.assert_allclose(newest.pos[:, 0, 1], 1.0)
+    for trial, n in lengths.items():
+        ep = tail.load_episode((300, trial))
+        assert ep.num_frames == n and np.allclose(ep.pos[:, 0, 1], trial)
+    assert tail.load_episode(300).trial == 0, "a number alone is its trial 0"
 
 
 def test_tail_follows_a_log_rewritten_on_resume_and_concatenated_streams(tmp_path: Path) -> None:

@@ -247,11 +247,11 @@ def test_a_replay_frame_costs_the_server_well_under_a_30_fps_budget(runs: Path) 
         replay = _session(dashboard).replay
         client.wait_for(lambda: replay.episode is not None, what="an episode")
         costs = []
-        for i in range(60):
+        for i in range(60):  # CPU time of this thread: other processes' load does not count
             replay.player.seek(i % 12)
-            t0 = time.perf_counter()
+            t0 = time.thread_time()
             replay.redraw()
-            costs.append(time.perf_counter() - t0)
+            costs.append(time.thread_time() - t0)
         assert np.median(costs) < 0.01, f"per-frame update {np.median(costs) * 1e3:.2f} ms"
     finally:
         client.close()

@@ -129,3 +129,43 @@ def test_append_keeps_earlier_messages(tmp_path: Path) -> None:
     assert [m["iteration"] for m in read_metrics(path)] == [0, 1, 2, 3, 4, 5]
     assert read_scene(path).objects[0].name == "box"
     assert sum(len(v) for v in read_episodes(path).values()) == 4
+
+
+def test_resumed_log_keeps_only_iterations_up_to_the_checkpoint(tmp_path: Path) -> None:
+    """A run killed after logging iterations 0..4 with checkpoint 2 trains 3 and 4 again."""
+    path = tmp_path / "log.mcap"
+    _write_log(path, frames=4)
+    with RunLogWriter(path, append=True, metrics_until=2) as log:
+        for iteration in (3, 4, 5):
+            log.log_metrics(iteration, {"reward/mean": 1.0})
+    assert [m["iteration"] for m in read_metrics(path)] == [0, 1, 2, 3, 4, 5]
+    assert read_metrics(path)[3]["reward/mean"] == 1.0, "the retrained iteration replaces the old"
+    assert sum(len(v) for v in read_episodes(path).values()) == 4, "episodes are kept"
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_atomic_writer_leaves_the_old_file_or_the_new_one(tmp_path: Path) -> None:
+    from detach.run_contract import atomic_writer
+
+    target = tmp_path / "model_1.pt"
+    target.write_bytes(b"old")
+    with pytest.raises(OSError):
+        with atomic_writer(target) as f:
+            f.write(b"half of the new")
+            raise OSError(28, "No space left on device")
+    assert target.read_bytes() == b"old" and [p.name for p in tmp_path.iterdir()] == ["model_1.pt"]
+    with atomic_writer(target) as f:
+        f.write(b"new")
+    assert target.read_bytes() == b"new" and [p.name for p in tmp_path.iterdir()] == ["model_1.pt"]
+
+
+def test_status_names_its_host_and_survives_a_heartbeat(tmp_path: Path, cfg) -> None:
+    import socket
+
+    run = RunFolder.create(tmp_path, cfg, now=0)
+    status = run.set_state("running", iteration=2)
+    assert status.host == socket.gethostname() and status.pid
+    before = status.updated
+    run.heartbeat()
+    after = run.status()
+    assert after.updated >= before and after.iteration == 2 and after.state == "running"

@@ -2,7 +2,7 @@
 
 Unbiased trial counting: stopping at "the first `trials` finished episodes" over parallel envs
 would favour short (often failed) episodes, so every env gets a fixed quota of episodes and
-only those count. Env 0's first episode is recorded frame by frame (`EpisodeFrame`) through a
+only those count. Every counted trial is recorded frame by frame (`EpisodeFrame`) through a
 recorder (the run's log.mcap), together with the scene.
 """
 
@@ -32,45 +32,48 @@ class EpisodeRecorder(Protocol):
     def flush(self) -> None: ...
 
 
-def _frame(env, episode: int, frame: int) -> EpisodeFrame:
-    snap = env.snapshot(0)
+def _frame(env, i: int, episode: int, trial: int, frame: int) -> EpisodeFrame:
+    snap = env.snapshot(i)
     return EpisodeFrame(episode, frame, frame * env.dt, list(snap.bodies), snap.body_pos.tolist(),
-                        snap.body_quat.tolist(), snap.objects, snap.subtask, snap.skill)
+                        snap.body_quat.tolist(), snap.objects, snap.subtask, snap.skill, trial)
 
 
 def run_evaluation(env, policy: Policy, trials: int, cfg: RunConfig, recorder: EpisodeRecorder | None = None,
                    progress: bool = True, episode_id: int = 0) -> EvalResult:
     """Roll out `trials` episodes (quota per env) and summarise them as an eval.json result.
 
-    With a `recorder`, env 0's first episode is recorded as episode `episode_id` (the
-    checkpoint's iteration, so evaluations of successive checkpoints stay apart)."""
+    With a `recorder`, every counted trial is recorded as episode `episode_id` (the
+    checkpoint's iteration, so evaluations of successive checkpoints stay apart), trial 0, 1,
+    ... in the order the trials started (each env's first episodes are its trials)."""
     n = env.num_envs
     quota = [trials // n + (1 if i < trials % n else 0) for i in range(n)]
     counted = [0] * n
     outcomes: list[TrialOutcome] = []
-    recording = recorder is not None
-    frame = 0
+    trial_of = list(range(n))  # the trial each env is playing (recorded while < its quota)
+    frame_of = [0] * n
+    next_trial = n
     if recorder is not None:
         recorder.log_scene(scene_message(env, cfg))
     obs = env.get_observations()
     bar = tqdm(total=trials, desc=f"eval {cfg.task_name}", disable=not progress, unit="ep")
     with torch.inference_mode():
         while len(outcomes) < trials:
-            if recording:
-                recorder.log_frame(_frame(env, episode_id, frame))
-                frame += 1
+            for i in range(n) if recorder is not None else ():
+                if counted[i] < quota[i]:
+                    recorder.log_frame(_frame(env, i, episode_id, trial_of[i], frame_of[i]))
+                    frame_of[i] += 1
             obs, _rew, dones, extras = env.step(policy(obs))
             progress_data = extras.get("episode_progress")
             for i in dones.nonzero().flatten().tolist():
-                if i == 0 and recording:
-                    recording = False
-                    recorder.flush()
-                if counted[i] >= quota[i] or progress_data is None:
-                    continue
-                counted[i] += 1
-                outcomes.append(_outcome(progress_data, i, env.dt))
-                bar.update(1)
+                if counted[i] < quota[i] and progress_data is not None:
+                    counted[i] += 1
+                    outcomes.append(_outcome(progress_data, i, env.dt))
+                    bar.update(1)
+                if counted[i] < quota[i]:  # its next episode is a trial too
+                    trial_of[i], frame_of[i], next_trial = next_trial, 0, next_trial + 1
     bar.close()
+    if recorder is not None:
+        recorder.flush()
     return summarize([s.skill for s in env.plan], outcomes, cfg.eval.confidence,
                      task=cfg.task_name, model=cfg.model_name)
 

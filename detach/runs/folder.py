@@ -1,51 +1,138 @@
 """A run folder on disk: creating it, its paths, its status, its checkpoints.
 
 The format (file names, status.json, eval.json) is `detach.run_contract`. Every JSON/YAML
-file is replaced atomically (write a temporary file, then rename), so a reader never sees
-half a file.
+file is replaced atomically (`run_contract.atomic_writer`: a fsynced temporary file, then a
+rename), so a reader never sees half a file, and files get the user's umask.
+
+Whether a run is really alive is not what status.json says: a `kill -9` leaves `running`
+behind. `owner_alive` asks the operating system when the recorded process is on this host
+and trusts the heartbeat (`updated`, refreshed by `detach.runs.job` every
+`HEARTBEAT_S`) when it is on another host sharing the runs folder.
 """
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
+import math
 import os
-import tempfile
+import socket
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Callable, Literal
 
 from detach.config import dump, load_run_config
 from detach.config_schema import RunConfig
 from detach.run_contract import (
-    CHECKPOINT_DIR, CONFIG_FILE, EVAL_FILE, LOG_FILE, RUN_MARKERS, RUN_STATES, STATUS_FILE, STDOUT_FILE,
-    EvalResult, Status, checkpoint_iteration,
+    CHECKPOINT_DIR, CONFIG_FILE, EVAL_FILE, LIVE_STATES, LOG_FILE, RUN_MARKERS, RUN_STATES, STATUS_FILE,
+    STDOUT_FILE, EvalResult, Status, atomic_writer, checkpoint_iteration, is_temp_file,
 )
 
 RunState = Literal["queued", "running", "finished", "failed", "interrupted"]
+
+HEARTBEAT_S = 30.0
+"""How often a running job refreshes status.json's `updated` (detach.runs.job)."""
+STALE_AFTER_S = 600.0
+"""A run on another host whose status.json is older than this is taken for dead (generous:
+clocks of machines sharing a folder may disagree by minutes)."""
+MAX_JSON_BYTES = 16 * 1024 * 1024
+"""status.json and eval*.json larger than this are refused unread (they are a few KB)."""
+
+_STATUS_LOCK = threading.Lock()
+"""status.json is read-modified-written by the job and its heartbeat thread."""
+_NO_SPACE = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
+
+
+def this_host() -> str:
+    return socket.gethostname()
 
 
 def atomic_write_text(path: Path, text: str) -> None:
     """Write `text` to `path` so that readers see the old or the new file, never a mix."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_writer(path, binary=False) as f:
+        f.write(text)
 
 
 def atomic_write_json(path: Path, data: Any) -> None:
     atomic_write_text(path, json.dumps(data, indent=2, sort_keys=False) + "\n")
 
 
+def read_json(path: Path) -> Any:
+    """A small JSON file of the run folder (OSError if unreadable, ValueError if malformed,
+    too large or too deeply nested)."""
+    with open(path, "rb") as f:
+        data = f.read(MAX_JSON_BYTES + 1)
+    if len(data) > MAX_JSON_BYTES:
+        raise ValueError(f"{path.name}: larger than {MAX_JSON_BYTES} bytes")
+    try:
+        return json.loads(data)
+    except RecursionError:
+        raise ValueError(f"{path.name}: nested too deeply") from None
+
+
+def _overwrite_in_place(path: Path, text: str) -> None:
+    """Last resort on a full disk: rewrite a small existing file in the blocks it already owns
+    (a rename needs a new file, which needs space). Readers may glimpse a partial file."""
+    with open(path, "r+b") as f:
+        f.write(text.encode("utf-8"))
+        f.truncate()
+        f.flush()
+        os.fsync(f.fileno())
+
+
 def run_folder_name(cfg: RunConfig, now: float | None = None) -> str:
     """<YYYYmmdd-HHMMSS>-<task>-<model>-s<seed> (the run folder contract)."""
     stamp = time.strftime("%Y%m%d-%H%M%S", time.localtime(now))
     return f"{stamp}-{cfg.task_name}-{cfg.model_name}-s{cfg.seed}"
+
+
+def _process_start_time(pid: int) -> float | None:
+    """Unix time at which process `pid` started (Linux /proc), None if unknown."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        boot = next(float(line.split()[1]) for line in Path("/proc/stat").read_text().splitlines()
+                    if line.startswith("btime "))
+        return boot + int(fields[19]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError, StopIteration):
+        return None
+
+
+def pid_alive(pid: int, since: float | None = None) -> bool:
+    """Whether process `pid` of this host exists (and, when `since` is given, started before
+    that time, within clock resolution: a pid reused by a newer process is not the run's)."""
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        pass  # another user's process: it exists
+    except (OverflowError, ValueError):
+        return False
+    if since is not None:
+        started = _process_start_time(int(pid))
+        if started is not None and started > since + 2.0:
+            return False
+    return True
+
+
+def owner_alive(status: Status, now: float | None = None) -> bool:
+    """Whether the process that status.json names may still be working on the run.
+
+    Finished, failed and interrupted runs have no owner. The current process is never
+    counted (it is the one asking). A pid of another host is not looked up here: that
+    machine's heartbeat (`updated`) decides."""
+    if status.state not in LIVE_STATES or not status.pid:
+        return False
+    if status.host and status.host != this_host():
+        return (now if now is not None else time.time()) - (status.updated or 0.0) < STALE_AFTER_S
+    if status.pid == os.getpid():
+        return False
+    # The owner wrote `updated` after it started; a process younger than that reused the pid.
+    return pid_alive(status.pid, since=status.updated)
 
 
 @dataclass
@@ -80,7 +167,10 @@ class RunFolder:
 
     @classmethod
     def create(cls, parent: Path, cfg: RunConfig, now: float | None = None) -> "RunFolder":
-        """Make a new folder (a numeric suffix if the name is taken) in state `queued`."""
+        """Make a new folder (a numeric suffix if the name is taken) in state `queued`.
+
+        All or nothing: if any file cannot be written (read-only or full disk), the folder is
+        removed again and the OSError raised."""
         parent.mkdir(parents=True, exist_ok=True)
         base = run_folder_name(cfg, now)
         path, k = parent / base, 1
@@ -92,48 +182,153 @@ class RunFolder:
                 k += 1
                 path = parent / f"{base}-{k}"
         run = cls(path)
-        run.checkpoints.mkdir()
-        atomic_write_text(run.config_path, dump(cfg))
-        run.set_state("queued", iteration=0)
+        try:
+            run.checkpoints.mkdir()
+            atomic_write_text(run.config_path, dump(cfg))
+            run.set_state("queued", iteration=0)
+        except BaseException:
+            run._remove_new_folder()
+            raise
         return run
+
+    def _remove_new_folder(self) -> None:
+        for child in (self.checkpoints, self.config_path, self.status_path):
+            with contextlib.suppress(OSError):
+                child.rmdir() if child.is_dir() else child.unlink()
+        with contextlib.suppress(OSError):
+            self.path.rmdir()
 
     def config(self) -> RunConfig:
         return load_run_config(self.config_path)
 
     def status(self) -> Status:
         """status.json (OSError if missing, ValueError if malformed)."""
-        return Status.from_json(json.loads(self.status_path.read_text(encoding="utf-8")))
+        return Status.from_json(read_json(self.status_path))
 
     def set_state(self, state: RunState, **fields: Any) -> Status:
-        """Update status.json (state, pid, iteration, started, updated, error, cell)."""
+        """Update status.json (state, pid, host, iteration, started, updated, error, cell)."""
         if state not in RUN_STATES:
             raise ValueError(f"unknown run state {state!r}")
-        try:
-            status = self.status()
-        except (OSError, ValueError):
-            status = Status(state)
-        now = time.time()
-        for key, value in fields.items():
-            setattr(status, key, value)
-        status.state, status.updated = state, now
-        if state == "running" and not status.started:
-            status.started = now
-        if state == "running" or status.pid is None:
-            status.pid = os.getpid()
-        atomic_write_json(self.status_path, status.to_json())
+        with _STATUS_LOCK:
+            try:
+                status = self.status()
+            except (OSError, ValueError):
+                status = Status(state)
+            now = time.time()
+            for key, value in fields.items():
+                setattr(status, key, value)
+            status.state, status.updated = state, now
+            if state == "running" and not status.started:
+                status.started = now
+            if state == "running" or status.pid is None:
+                status.pid, status.host = os.getpid(), this_host()
+            self._write_status(status)
         return status
+
+    def heartbeat(self) -> None:
+        """Refresh `updated` of a run this process is running (other hosts read it)."""
+        with _STATUS_LOCK:
+            try:
+                status = self.status()
+            except (OSError, ValueError):
+                return
+            if status.state != "running" or status.pid != os.getpid():
+                return
+            status.updated = time.time()
+            with contextlib.suppress(OSError):
+                self._write_status(status)
+
+    def _write_status(self, status: Status) -> None:
+        text = json.dumps(status.to_json(), indent=2) + "\n"
+        try:
+            atomic_write_text(self.status_path, text)
+        except OSError as exc:
+            if exc.errno not in _NO_SPACE or not self.status_path.exists():
+                raise
+            _overwrite_in_place(self.status_path, text)
+
+    def owner_alive(self) -> bool:
+        """Whether another live process owns this run (see `owner_alive`)."""
+        try:
+            return owner_alive(self.status())
+        except (OSError, ValueError):
+            return False
+
+    def checkpoint_files(self) -> list[Path]:
+        """Checkpoints (model_<iter>.pt), newest first."""
+        found = [(checkpoint_iteration(p.name), p) for p in self.checkpoints.glob("model_*.pt")]
+        return [p for _it, p in sorted(((it, p) for it, p in found if it is not None), reverse=True)]
 
     def latest_checkpoint(self) -> Path | None:
         """Checkpoint with the highest iteration number (model_<iter>.pt)."""
-        found = [(checkpoint_iteration(p.name), p) for p in self.checkpoints.glob("*.pt")]
-        found = sorted((it, p) for it, p in found if it is not None)
-        return found[-1][1] if found else None
+        files = self.checkpoint_files()
+        return files[0] if files else None
+
+    def usable_checkpoint(self, map_location: str = "cpu", report: Callable[[str], None] = print) -> Path | None:
+        """The newest checkpoint that reads back whole (None when there is none).
+
+        A truncated or corrupt newest file (a disk that filled, a copy cut short) falls back to
+        the previous one, with a line saying so. A file refused for holding code, or one of
+        another model, is not skipped: CheckpointError, since falling back would hide it."""
+        from detach.train.checkpoints import UnreadableCheckpoint, read_checkpoint
+
+        for path in self.checkpoint_files():
+            try:
+                read_checkpoint(path, map_location)
+            except UnreadableCheckpoint as exc:
+                report(f"skipping {exc}")
+                continue
+            return path
+        return None
+
+    def remove_stale_temp_files(self) -> list[Path]:
+        """Delete temporary files that writers killed mid-write left behind (their pid, in the
+        name, is dead); returns what was removed. Call when taking ownership of the run."""
+        removed = []
+        for folder in (self.path, self.checkpoints):
+            if not folder.is_dir():
+                continue
+            for path in folder.iterdir():
+                legacy = path.name.endswith(".pt.tmp") or path.name == f".{LOG_FILE}.tmp"
+                if not (legacy or is_temp_file(path.name)):
+                    continue
+                parts = path.name.rsplit(".", 3)
+                pid = int(parts[1]) if len(parts) == 4 and parts[1].isdigit() else None
+                if pid is not None and (pid == os.getpid() or pid_alive(pid)):
+                    continue
+                with contextlib.suppress(OSError):
+                    path.unlink()
+                    removed.append(path)
+        return removed
 
     def eval_result(self) -> EvalResult | None:
-        """eval.json (None if missing; ValueError if malformed)."""
+        """eval.json (None if missing; ValueError if malformed or impossible)."""
         if not self.eval_path.exists():
             return None
-        return EvalResult.from_json(json.loads(self.eval_path.read_text(encoding="utf-8")), str(self.eval_path))
+        return read_eval(self.eval_path)
+
+
+def implausible(result: EvalResult) -> str | None:
+    """Why numbers that follow the contract are still impossible (None when they are fine):
+    no trials, or a statistic that is not a finite number."""
+    if result.trials < 1:
+        return f"'trials' must be >= 1, found {result.trials}"
+    sgr = result.sgr.values() if isinstance(result.sgr, dict) else [result.sgr]
+    numbers = {"sgr": list(sgr), "mean_execution_time": [result.mean_execution_time],
+               "execution_time_ci": list(result.execution_time_ci or [])}
+    for key, values in numbers.items():
+        if any(v is not None and not (isinstance(v, (int, float)) and math.isfinite(v)) for v in values):
+            return f"'{key}' is not a finite number"
+    return None
+
+
+def read_eval(path: Path) -> EvalResult:
+    """One eval*.json, checked (OSError, or ValueError naming the file and what is wrong)."""
+    result = EvalResult.from_json(read_json(path), str(path))
+    problem = implausible(result)
+    if problem is not None:
+        raise ValueError(f"{path}: {problem}")
+    return result
 
 
 def find_runs(parent: Path) -> list[RunFolder]:

@@ -1,11 +1,17 @@
-"""`detach-run list`: one line per run folder, robust to half-written folders."""
+"""`detach-run list`: one line per run folder, robust to half-written and broken folders.
+
+A run whose status.json says `running` but whose process is gone (`kill -9`, a crashed
+machine) is listed as `dead`, with the command that resumes it; a malformed eval.json shows
+as `invalid` with its reason, and never stops the listing of the other runs.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Any
 
-from detach.runs.folder import RunFolder, find_runs
+from detach.run_contract import LIVE_STATES
+from detach.runs.folder import RunFolder, find_runs, owner_alive, this_host
 
 
 def run_row(run: RunFolder) -> dict[str, Any]:
@@ -19,24 +25,37 @@ def run_row(run: RunFolder) -> dict[str, Any]:
         return row
     row.update(task=cfg.task_name, model=cfg.model_name, seed=cfg.seed,
                state=status.state, iteration=status.iteration)
+    if status.state in LIVE_STATES and status.pid and not owner_alive(status):
+        where = f" on {status.host}" if status.host and status.host != this_host() else ""
+        row["state"] = "dead"
+        row.setdefault("notes", []).append(f"status says {status.state}, but its process {status.pid}{where} "
+                                           f"is gone; resume with: detach-run --resume {run.path}")
     try:
         result = run.eval_result()
-    except (OSError, ValueError):
-        result = None
+    except Exception as exc:  # noqa: BLE001 - one bad eval.json must not hide the other runs
+        row["lh_sr"] = "invalid"
+        row.setdefault("notes", []).append(f"eval.json ignored: {exc}")
+        return row
     row["lh_sr"] = result.lh_success.rate if result else None
     return row
+
+
+def _rate(value: Any) -> str:
+    if value is None:
+        return "-"
+    return value if isinstance(value, str) else f"{value:.2f}"
 
 
 def format_runs(rows: list[dict[str, Any]]) -> str:
     header = ["run", "task", "model", "seed", "state", "iteration", "LH SR"]
     lines = [header]
     for r in rows:
-        sr = "-" if r.get("lh_sr") is None else f"{r['lh_sr']:.2f}"
         lines.append([r["run"], str(r.get("task", "-")), str(r.get("model", "-")),
-                      str(r.get("seed", "-")), r["state"], str(r.get("iteration", "-")), sr])
+                      str(r.get("seed", "-")), r["state"], str(r.get("iteration", "-")), _rate(r.get("lh_sr"))])
     widths = [max(len(line[i]) for line in lines) for i in range(len(header))]
     out = ["  ".join(c.ljust(w) for c, w in zip(line, widths)).rstrip() for line in lines]
     out += [f"  {r['run']}: {r['error']}" for r in rows if r["state"] == "unreadable"]
+    out += [f"  {r['run']}: {note}" for r in rows for note in r.get("notes", ())]
     return "\n".join(out)
 
 

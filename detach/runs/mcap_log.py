@@ -9,8 +9,10 @@ flush.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import secrets
 from pathlib import Path
 from typing import Any, BinaryIO, Iterator, Sequence
 
@@ -18,7 +20,8 @@ from mcap.reader import NonSeekingReader
 from mcap.writer import CompressionType, Writer
 
 from detach.run_contract import (
-    EPISODE_TOPIC, MCAP_SCHEMAS, METRICS_TOPIC, SCENE_TOPIC, TF_TOPIC, EpisodeFrame, MetricsMessage, SceneMessage,
+    EPISODE_TOPIC, MCAP_SCHEMAS, METRICS_TOPIC, SCENE_TOPIC, TEMP_SUFFIX, TF_TOPIC, EpisodeFrame, MetricsMessage,
+    SceneMessage,
 )
 
 _VEC3 = {"type": "object", "properties": {k: {"type": "number"} for k in "xyz"}}
@@ -38,12 +41,18 @@ FOXGLOVE_FRAME_TRANSFORMS = {
 class RunLogWriter:
     """Append-only writer of a run's log.mcap (one writer per process)."""
 
-    def __init__(self, path: Path, flush_every: int = 30, append: bool = False) -> None:
+    def __init__(self, path: Path, flush_every: int = 30, append: bool = False,
+                 metrics_until: int | None = None) -> None:
         """`append=True` keeps the messages of an existing log (a resumed run): MCAP files
-        cannot be appended to, so they are copied into a fresh file that replaces it."""
+        cannot be appended to, so they are copied into a fresh file that replaces it.
+        `metrics_until` (the resumed checkpoint's iteration) drops the /metrics messages of
+        later iterations: the run trains them again, and a log must hold each iteration once."""
         self.path = Path(path)
         previous = list(iter_messages(self.path)) if append and self.path.exists() else []
-        tmp = self.path.with_name(f".{self.path.name}.tmp")
+        if metrics_until is not None:
+            previous = [(topic, time_ns, m) for topic, time_ns, m in previous
+                        if topic != METRICS_TOPIC or _iteration(m) <= metrics_until]
+        tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.{secrets.token_hex(4)}{TEMP_SUFFIX}")
         self._file: BinaryIO = open(tmp, "wb")
         self._writer = Writer(self._file, chunk_size=256 * 1024,
                               compression=CompressionType.ZSTD)
@@ -56,11 +65,16 @@ class RunLogWriter:
         self._frames_since_flush = 0
         self.flush_every = flush_every
         self._sequence = 0
-        for topic, time_ns, message in previous:
-            if topic in self._channels:
-                self.write(topic, message, time_ns)
-        self._writer.flush()
-        os.replace(tmp, self.path)
+        try:
+            for topic, time_ns, message in previous:
+                if topic in self._channels:
+                    self.write(topic, message, time_ns)
+            self._writer.flush()
+            os.replace(tmp, self.path)
+        except BaseException:
+            self._file.close()
+            Path(tmp).unlink(missing_ok=True)
+            raise
 
     def _register(self, topic: str, name: str, schema: dict[str, Any]) -> int:
         schema_id = self._writer.register_schema(name=name, encoding="jsonschema",
@@ -107,11 +121,21 @@ class RunLogWriter:
         self._writer.flush()
 
     def close(self) -> None:
-        """Write the summary section (indexes); the file is complete after this."""
+        """Write the summary section (indexes); the file is complete after this.
+
+        A failure here (a full disk) is only reported: the summary is an index, every message
+        already written stays readable without it, and the run's real error must not drown in
+        a second traceback."""
         if self._file.closed:
             return
-        self._writer.finish()
-        self._file.close()
+        try:
+            self._writer.finish()
+        except OSError as exc:
+            with contextlib.suppress(OSError):
+                print(f"note: {self.path.name} closed without its index ({exc.strerror or exc})", flush=True)
+        finally:
+            with contextlib.suppress(OSError):
+                self._file.close()
 
     def __enter__(self) -> "RunLogWriter":
         return self
@@ -136,6 +160,11 @@ def iter_messages(path: Path, topics: Sequence[str] | None = None
                     yield channel.topic, message.log_time, json.loads(message.data)
         except Exception:  # noqa: BLE001 - a truncated or still-growing tail ends the read
             return
+
+
+def _iteration(message: dict[str, Any]) -> int:
+    value = message.get("iteration") if isinstance(message, dict) else None
+    return value if isinstance(value, int) else -1
 
 
 def read_metrics(path: Path) -> list[dict[str, Any]]:

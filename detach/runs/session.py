@@ -20,23 +20,28 @@ from detach.envs.lh_env import make_env
 from detach.eval.episodes import run_evaluation
 from detach.eval.scene import scene_message
 from detach.models.factory import build_actor_critic
-from detach.run_contract import eval_file
+from detach.run_contract import checkpoint_iteration, eval_file
 from detach.runs.folder import RunFolder, atomic_write_json
 from detach.runs.mcap_log import RunLogWriter
+from detach.train.checkpoints import CheckpointError, check_model, load_module_weights, read_checkpoint
 from detach.train.setup import build_runner, default_action_std, prepare_assets, seed_everything
 
 
 def train_and_evaluate(run: RunFolder, resume: bool, eval_tasks: Sequence[Path] = (),
                        trials: int | None = None, evaluate: bool = True,
-                       device: str | None = None) -> None:
+                       device: str | None = None, checkpoint: Path | None = None) -> None:
+    """Train (or resume from `checkpoint`, default the newest), then evaluate."""
     cfg = run.config()
     device = device or cfg.device
-    log = RunLogWriter(run.log_path, append=resume)
+    checkpoint = (checkpoint or run.latest_checkpoint()) if resume else None
+    log = RunLogWriter(run.log_path, append=resume,
+                       metrics_until=checkpoint_iteration(checkpoint.name) if checkpoint else None)
     try:
         env, runner = build_runner(cfg, run.checkpoints, device, log)
+        runner.model_name, runner.model_kind = cfg.model_name, cfg.model.kind
+        runner.keep_last, runner.keep_every = cfg.train.keep_checkpoints.last, cfg.train.keep_checkpoints.every
         start = 0
         if resume:
-            checkpoint = run.latest_checkpoint()
             start = runner.load_checkpoint(checkpoint)
             print(f"resumed from {checkpoint.name}: continuing at iteration {start}", flush=True)
         else:
@@ -67,15 +72,18 @@ def evaluate_run(run: RunFolder, task_path: Path | None, checkpoint: Path | None
     train_cfg = run.config()
     cfg = eval_config(train_cfg, task_path)
     device = device or cfg.device
-    checkpoint = checkpoint or run.latest_checkpoint()
-    trials = trials or cfg.eval.trials
+    checkpoint = checkpoint or run.usable_checkpoint(device)
+    if checkpoint is None:
+        raise CheckpointError("no readable checkpoint to evaluate", str(run.checkpoints))
+    trials = cfg.eval.trials if trials is None else trials
     prepare_assets(cfg.task)
     seed_everything(cfg.seed + 1)
     env = make_env(cfg, num_envs=min(cfg.eval.num_envs, trials), device=device, eval_mode=True)
-    state = torch.load(checkpoint, map_location=device, weights_only=True)
+    state = read_checkpoint(checkpoint, device)
+    check_model(state, checkpoint, cfg.model_name, cfg.model.kind)
     actor, _critic = build_actor_critic(cfg.model, env.obs_spec, env.get_observations(),
                                         num_actions=env.num_actions, default_std=default_action_std(cfg))
-    actor.load_state_dict(state["actor_state_dict"])
+    load_module_weights(actor, state["actor_state_dict"], checkpoint, "actor")
     actor.to(device).eval()
     own = cfg.task_name == train_cfg.task_name
     log = RunLogWriter(run.log_path, append=True) if own and record else None

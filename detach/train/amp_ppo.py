@@ -35,6 +35,8 @@ from detach.config_schema import AmpCfg
 from detach.models.rsl_rl_models import link_shared_trunk
 from detach.train.discriminator import AmpDiscriminator, ReplayBuffer
 
+REPLAY_KEY = "amp_replay_state"
+"""Key of the AMP replay buffer's state in `AmpPPO.save()`'s dict."""
 AuxLossFn = Callable[[TensorDict, str], tuple[torch.Tensor, dict[str, float]]]
 ReferenceSampler = Callable[[int], tuple[torch.Tensor, torch.Tensor]]
 
@@ -250,19 +252,26 @@ class AmpPPO(PPO):
 
     # ------------------------------------------------------------------ state
     def save(self) -> dict:
+        """PPO's state plus the discriminators, their optimiser and (under `REPLAY_KEY`) the
+        AMP replay buffer, which the runner stores beside the checkpoint (it is large)."""
         saved = super().save()
         if self.amp_enabled:
             saved["discriminator_state_dict"] = self.discriminators.state_dict()
             saved["disc_optimizer_state_dict"] = self.disc_optimizer.state_dict()
+            saved[REPLAY_KEY] = self.replay.state_dict()
         return saved
 
     def load(self, loaded_dict: dict, load_cfg: dict | None, strict: bool) -> bool:
+        """Everything `save` wrote; a checkpoint without a replay buffer (an older one, or one
+        whose sidecar retention removed) leaves the buffer empty."""
         load_iteration = super().load(loaded_dict, load_cfg, strict)
         if self.amp_enabled and "discriminator_state_dict" in loaded_dict:
             self.discriminators.load_state_dict(loaded_dict["discriminator_state_dict"],
                                                 strict=strict)
             if load_cfg is None or load_cfg.get("optimizer"):
                 self.disc_optimizer.load_state_dict(loaded_dict["disc_optimizer_state_dict"])
+        if self.amp_enabled and loaded_dict.get(REPLAY_KEY) is not None:
+            self.replay.load_state_dict(loaded_dict[REPLAY_KEY])
         return load_iteration
 
     def train_mode(self) -> None:

@@ -106,6 +106,22 @@ class ReplayBuffer:
         self._next = (self._next + n) % self.capacity
         self.size = min(self.size + n, self.capacity)
 
+    def state_dict(self) -> dict[str, torch.Tensor | int]:
+        """The filled part of the buffer and its write position: a resumed run replays the
+        same old windows as the uninterrupted one would."""
+        return {"obs": self.obs[:self.size].clone(), "cond": self.cond[:self.size].clone(),
+                "size": self.size, "next": self._next, "capacity": self.capacity}
+
+    def load_state_dict(self, state: dict[str, torch.Tensor | int]) -> None:
+        obs, cond, size = state["obs"], state["cond"], int(state["size"])
+        if int(state["capacity"]) != self.capacity or obs.shape[1:] != self.obs.shape[1:] \
+                or cond.shape[1:] != self.cond.shape[1:] or not 0 <= size <= self.capacity:
+            raise ValueError(f"replay buffer of capacity {state['capacity']} x {tuple(obs.shape[1:])} "
+                             f"does not fit {self.capacity} x {tuple(self.obs.shape[1:])}")
+        self.obs[:size] = obs.to(self.obs.device)
+        self.cond[:size] = cond.to(self.cond.device)
+        self.size, self._next = size, int(state["next"]) % self.capacity
+
     def sample(self, n: int) -> tuple[torch.Tensor, torch.Tensor]:
         if self.size == 0:
             raise RuntimeError("replay buffer is empty")

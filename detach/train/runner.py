@@ -1,11 +1,20 @@
 """A thin subclass of rsl-rl-lib's OnPolicyRunner: stages, progress bar, run-folder output.
 
-It keeps rsl-rl's algorithm construction, save and load, and replaces only `learn`, to add
+It keeps rsl-rl's algorithm construction and replaces `learn`, `save` and `load`, to add
 what a run of this platform needs: the training stage of each iteration (DETACH's protocol),
 a tqdm bar with iteration / FPS / reward / success rates, one `/metrics` MCAP message per
 iteration, checkpoints `model_<iter>.pt` into the run folder, and a clean stop on SIGTERM or
 Ctrl-C (checkpoint first). A checkpoint's `iter` is the last *completed* iteration; resuming
-continues at `iter + 1` with the optimiser state restored.
+continues at `iter + 1`.
+
+What a checkpoint restores (`detach.train.checkpoints`): actor and critic with their
+observation normalisers, PPO's optimiser and adaptive learning rate, the discriminators,
+their normalisers and optimiser, the AMP replay buffer (a sidecar file, newest checkpoint
+only) and the random-number states (Python, NumPy, torch, the environment's generator).
+What it does not: the simulation state of the environments (a resumed run starts fresh
+episodes) and the progress bar's running reward averages.
+Loading never unpickles (`weights_only=True`; rsl-rl's own `load` would run a pickled
+`__reduce__`), and a file of another model is refused in one line.
 """
 
 from __future__ import annotations
@@ -21,10 +30,18 @@ import torch
 from rsl_rl.runners import OnPolicyRunner
 from tqdm import tqdm
 
-from detach.run_contract import checkpoint_file
+from detach.run_contract import checkpoint_file, replay_file
+from detach.train.amp_ppo import REPLAY_KEY
+from detach.train.checkpoints import (
+    CheckpointError, capture_rng, check_model, describe_mismatch, first_line, prune_checkpoints, read_checkpoint, read_sidecar,
+    replay_path, restore_rng, write_checkpoint,
+)
 from detach.train.schedule import stage_at
 
-StageHook = Callable[[str], None]
+StageHook = Callable[..., None]
+"""Called with the stage name when an iteration enters a new stage, and with
+`resumed=True` for the stage a resumed run continues (enter-once work such as DETACH's encoder
+snapshot must not run again: the checkpoint holds its result)."""
 IterationHook = Callable[[int, dict[str, float]], None]
 
 
@@ -53,7 +70,13 @@ class DetachRunner(OnPolicyRunner):
         self.on_iteration = on_iteration
         self.progress = progress
         self.completed_iteration = -1
+        self.resumed = False
         self._stop_signal: int | None = None
+        self.model_name: str | None = None
+        self.model_kind: str | None = None
+        """The run's model (recorded in checkpoints; a checkpoint of another is refused)."""
+        self.keep_last, self.keep_every = 0, 0
+        """Checkpoint retention (`train.keep_checkpoints`); 0, 0 keeps every checkpoint."""
 
     # ------------------------------------------------------------------ checkpoints
     def checkpoint_path(self, iteration: int) -> Path | None:
@@ -61,20 +84,84 @@ class DetachRunner(OnPolicyRunner):
             return None
         return self.checkpoint_dir / checkpoint_file(iteration)
 
+    def save(self, path: str, infos: dict | None = None) -> None:
+        """rsl-rl's save, written atomically; the AMP replay buffer goes to its sidecar and
+        the random-number states into the checkpoint."""
+        checkpoint = Path(path)
+        state = self.alg.save()
+        replay = state.pop(REPLAY_KEY, None)
+        state["iter"] = self.current_learning_iteration
+        state["infos"] = {**(infos or {}), "model": self.model_name, "model_kind": self.model_kind}
+        state["rng_state"] = capture_rng(getattr(self.env, "gen", None))
+        sidecar = replay_path(checkpoint) if replay is not None else None
+        if sidecar is not None:
+            write_checkpoint(sidecar, replay)
+        try:
+            write_checkpoint(checkpoint, state)
+        except BaseException:
+            if sidecar is not None:
+                sidecar.unlink(missing_ok=True)
+            raise
+
     def save_checkpoint(self) -> Path | None:
         path = self.checkpoint_path(self.completed_iteration)
         if path is None or self.completed_iteration < 0:
             return None
         self.current_learning_iteration = self.completed_iteration
-        tmp = path.with_suffix(".pt.tmp")
-        self.save(str(tmp), infos={"stage": stage_at(self.schedule, self.completed_iteration)})
-        tmp.replace(path)
+        self.save(str(path), infos={"stage": stage_at(self.schedule, self.completed_iteration)})
+        prune_checkpoints(path.parent, self.keep_last, self.keep_every)
         return path
 
+    def load(self, path: str, load_cfg: dict | None = None, strict: bool = True,
+             map_location: str | None = None) -> dict:
+        """rsl-rl's load without unpickling, plus the replay sidecar and the random state.
+
+        CheckpointError (one line) for a refused, truncated or foreign file."""
+        checkpoint = Path(path)
+        device = map_location or self.device
+        state = read_checkpoint(checkpoint, device)
+        if self.model_name is not None:
+            check_model(state, checkpoint, self.model_name, str(self.model_kind))
+        if getattr(self.alg, "amp_enabled", False):
+            sidecar = replay_path(checkpoint)
+            if sidecar is not None and sidecar.exists():
+                state[REPLAY_KEY] = read_sidecar(sidecar, device)
+            else:
+                print(f"note: no {replay_file(int(state['iter']))} beside {checkpoint.name}: the AMP replay "
+                      f"buffer starts empty", flush=True)
+        try:
+            load_iteration = self.alg.load(state, load_cfg, strict)
+        except (RuntimeError, KeyError, ValueError, TypeError) as exc:
+            raise CheckpointError(f"the checkpoint does not fit this run's model ({self._mismatch(state, exc)}); "
+                                  f"was it written by another model or config?", str(checkpoint)) from None
+        if load_iteration:
+            self.current_learning_iteration = int(state["iter"])
+        restore_rng(state.get("rng_state") or {}, getattr(self.env, "gen", None))
+        return state.get("infos") or {}
+
+    def _mismatch(self, state: dict, exc: BaseException) -> str:
+        """What of the checkpoint does not fit the actor and the critic, briefly."""
+        parts = []
+        for part, module, key in (("actor", self.alg.actor, "actor_state_dict"),
+                                  ("critic", self.alg.critic, "critic_state_dict")):
+            why = describe_mismatch(module.state_dict(), state.get(key))
+            if why != "incompatible values":
+                parts.append(f"{part}: {why}")
+        return "; ".join(parts) or first_line(exc)
+
     def load_checkpoint(self, path: Path) -> int:
-        """Restore models, optimisers and iteration; returns the next iteration to run."""
-        self.load(str(path), map_location=self.device)
+        """Restore models, optimisers, replay buffer, random state and iteration; returns the
+        next iteration to run. CheckpointError when the checkpoint's stage is not the one this
+        run's schedule gives its iteration (the schedule changed since it was written)."""
+        infos = self.load(str(path), map_location=self.device)
         self.completed_iteration = self.current_learning_iteration
+        self.resumed = True
+        saved_stage = infos.get("stage") if isinstance(infos, dict) else None
+        expected = stage_at(self.schedule, self.completed_iteration)
+        if saved_stage is not None and saved_stage != expected:
+            raise CheckpointError(f"iteration {self.completed_iteration} was trained in stage '{saved_stage}', "
+                                  f"but this run's schedule puts it in '{expected}' (train.stages or "
+                                  f"train.max_iterations changed the past)", str(path))
         return self.completed_iteration + 1
 
     # ------------------------------------------------------------------ loop
@@ -94,6 +181,8 @@ class DetachRunner(OnPolicyRunner):
         finally:
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
+        if self._stop_signal is not None:  # arrived after the last iteration's check
+            raise StopRequested(signal.Signals(self._stop_signal).name)
 
     def _loop(self, start: int, end: int) -> None:
         obs = self.env.get_observations().to(self.device)
@@ -108,9 +197,14 @@ class DetachRunner(OnPolicyRunner):
         for it in bar:
             new_stage = stage_at(self.schedule, it)
             if new_stage != stage:
+                continuing = it == start and start > 0 and self.resumed \
+                    and stage_at(self.schedule, start - 1) == new_stage
                 stage = new_stage
                 if self.on_stage is not None:
-                    self.on_stage(stage)
+                    if continuing:
+                        self.on_stage(stage, resumed=True)
+                    else:
+                        self.on_stage(stage)
             self.alg.stage = stage
             t0 = time.time()
             episode_logs: dict[str, list[float]] = {}
@@ -159,7 +253,8 @@ class DetachRunner(OnPolicyRunner):
                 self.save_checkpoint()
             if self._stop_signal is not None:
                 bar.close()
-                raise StopRequested(signal.Signals(self._stop_signal).name)
+                signum, self._stop_signal = self._stop_signal, None
+                raise StopRequested(signal.Signals(signum).name)
         bar.close()
 
     @staticmethod
@@ -171,3 +266,4 @@ class DetachRunner(OnPolicyRunner):
             if key.startswith("success/"):
                 post[key.split("/", 1)[1]] = f"{value:.2f}"
         return post
+

@@ -68,11 +68,12 @@ def _stage_hook(runner: DetachRunner):
     models = [m for m in (runner.alg.actor, runner.alg.critic)
               if hasattr(m, "freeze_encoders") and m.owns_trunk]
 
-    def on_stage(stage: str) -> None:
-        print(f"stage: {stage}", flush=True)
+    def on_stage(stage: str, resumed: bool = False) -> None:
+        print(f"stage: {stage}{' (resumed)' if resumed else ''}", flush=True)
         for m in models:
             if stage == "fusion":
-                m.snapshot_encoders()
+                if not resumed:  # a resumed run's anchors come from its checkpoint
+                    m.snapshot_encoders()
                 m.freeze_encoders()
             elif stage in ("pretrain", "joint"):
                 m.unfreeze_encoders()

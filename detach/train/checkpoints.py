@@ -1,0 +1,190 @@
+"""Checkpoint files: written whole, read without running code, pruned, and the random state.
+
+- Reading never unpickles: `torch.load(..., weights_only=True)` only rebuilds tensors and
+  plain containers, so a checkpoint crafted to run code on load is refused (a pickled
+  `__reduce__` would otherwise execute on `--eval`, `--resume` and a sweep's automatic
+  resume). Every way a file can be unusable (refused, truncated, not a checkpoint, of
+  another model) is one `CheckpointError` line, which the CLI reports with exit code 2.
+- Writing goes through `run_contract.atomic_writer`: fsynced, renamed into place, the
+  temporary file removed when the disk is full or the process is stopped mid-write.
+- Retention (`train.keep_checkpoints`): the newest `last` checkpoints and every checkpoint
+  whose iteration count is a multiple of `every`; the AMP replay sidecar only for the newest.
+- The random-number state (Python, NumPy, torch CPU and CUDA, the environment's generator)
+  travels in the checkpoint so that a resumed run draws what the uninterrupted run would have.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import pickle
+import random
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from detach.run_contract import (
+    atomic_writer, checkpoint_file, checkpoint_iteration, fsync_folder, replay_file, replay_iteration,
+)
+from detach.yaml_source import ConfigError
+
+REQUIRED_KEYS = ("actor_state_dict", "critic_state_dict", "iter")
+
+
+class CheckpointError(ConfigError):
+    """A checkpoint that cannot be used, in one line naming the file and why."""
+
+
+class UnreadableCheckpoint(CheckpointError):
+    """A truncated or corrupt file: an older checkpoint may stand in for it."""
+
+
+def read_checkpoint(path: Path, map_location: str | torch.device | None = "cpu") -> dict[str, Any]:
+    """The checkpoint's dict, loaded with `weights_only=True`; CheckpointError otherwise."""
+    try:
+        state = torch.load(path, map_location=map_location, weights_only=True)
+    except FileNotFoundError:
+        raise CheckpointError("checkpoint not found", str(path)) from None
+    except pickle.UnpicklingError as exc:
+        if "weights only" in str(exc).lower():
+            raise CheckpointError("refused: the checkpoint holds Python objects besides weights, and "
+                                  "loading them could run code (detach never writes such files)",
+                                  str(path)) from None
+        raise UnreadableCheckpoint(f"unreadable checkpoint (corrupt: {first_line(exc)})", str(path)) from None
+    except (RuntimeError, EOFError, KeyError, ValueError, OSError, IndexError, TypeError) as exc:
+        raise UnreadableCheckpoint(f"unreadable checkpoint, truncated or corrupt ({type(exc).__name__}: "
+                              f"{first_line(exc)})", str(path)) from None
+    if not isinstance(state, dict) or any(k not in state for k in REQUIRED_KEYS):
+        raise CheckpointError(f"not a detach checkpoint (expected the keys {', '.join(REQUIRED_KEYS)})",
+                              str(path))
+    return state
+
+
+def first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return (text[0][:120] if text else "") or "no detail"
+
+
+def read_sidecar(path: Path, map_location: str | torch.device | None = "cpu") -> Any:
+    """A file saved beside a checkpoint (the AMP replay buffer), loaded weights-only too."""
+    try:
+        return torch.load(path, map_location=map_location, weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - every way a file can be unusable is one line
+        raise CheckpointError(f"unreadable AMP replay buffer ({type(exc).__name__}: {first_line(exc)}); "
+                              f"delete it to resume with an empty buffer", str(path)) from None
+
+
+def check_model(state: dict[str, Any], path: Path, model_name: str, model_kind: str) -> None:
+    """CheckpointError when the checkpoint records another model than the run's."""
+    infos = state.get("infos") if isinstance(state.get("infos"), dict) else {}
+    saved_name, saved_kind = infos.get("model"), infos.get("model_kind")
+    if saved_name is None and saved_kind is None:
+        return  # written before checkpoints named their model: the weights themselves decide
+    if (saved_name, saved_kind) != (model_name, model_kind):
+        raise CheckpointError(f"checkpoint is for model {saved_name} ({saved_kind}), the run is "
+                              f"{model_name} ({model_kind})", str(path))
+
+
+def describe_mismatch(expected: dict[str, torch.Tensor], found: Any) -> str:
+    """Why the weights `found` do not fit a module whose state dict is `expected`, briefly."""
+    if not isinstance(found, dict):
+        return f"expected a state dict, found {type(found).__name__}"
+    missing = [k for k in expected if k not in found]
+    unexpected = [k for k in found if k not in expected]
+    shapes = [k for k in expected if k in found and torch.is_tensor(found[k])
+              and tuple(found[k].shape) != tuple(expected[k].shape)]
+    parts = [f"{len(keys)} {what} (e.g. {keys[0]})" for what, keys in
+             (("missing", missing), ("unexpected", unexpected), ("of another shape", shapes)) if keys]
+    return "; ".join(parts) or "incompatible values"
+
+
+def load_module_weights(module: torch.nn.Module, weights: Any, path: Path, part: str) -> None:
+    """`module.load_state_dict(weights)`, with a one-line CheckpointError instead of the
+    kilobytes of key names torch prints for a checkpoint of another architecture."""
+    try:
+        module.load_state_dict(weights)
+    except (RuntimeError, KeyError, TypeError, AttributeError):
+        raise CheckpointError(f"the {part} weights do not fit this run's model ("
+                              f"{describe_mismatch(module.state_dict(), weights)}); was the checkpoint "
+                              f"written by another model or config?", str(path)) from None
+
+
+def write_checkpoint(path: Path, state: dict[str, Any]) -> None:
+    """Write `state` atomically and durably (nothing is left under any name on failure)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_writer(path) as f:
+        torch.save(state, f)
+
+
+# ------------------------------------------------------------------------------ retention
+def kept_iterations(iterations: list[int], last: int, every: int) -> set[int]:
+    """Iterations whose checkpoints retention keeps: the newest `last` (all when 0), every one
+    with (iteration + 1) % every == 0 (none when 0), and always the newest."""
+    ordered = sorted(set(iterations), reverse=True)
+    keep = set(ordered if last <= 0 else ordered[:last])
+    if every > 0:
+        keep |= {it for it in ordered if (it + 1) % every == 0}
+    return keep | set(ordered[:1])
+
+
+def prune_checkpoints(folder: Path, last: int, every: int) -> list[Path]:
+    """Delete checkpoints retention does not keep and replay sidecars of all but the newest
+    checkpoint; returns the deleted files."""
+    models = {it: p for p in folder.glob("model_*.pt") if (it := checkpoint_iteration(p.name)) is not None}
+    keep = kept_iterations(list(models), last, every)
+    newest = max(models, default=None)
+    doomed = [p for it, p in models.items() if it not in keep]
+    doomed += [p for p in folder.glob("amp_replay_*.pt")
+               if (it := replay_iteration(p.name)) is not None and it != newest]
+    for path in doomed:
+        with contextlib.suppress(OSError):
+            path.unlink()
+    if doomed:
+        fsync_folder(folder)
+    return doomed
+
+
+def replay_path(checkpoint: Path) -> Path | None:
+    """The AMP replay sidecar saved with a checkpoint (None for a file not named model_<it>.pt)."""
+    iteration = checkpoint_iteration(checkpoint.name)
+    return None if iteration is None else checkpoint.with_name(replay_file(iteration))
+
+
+def checkpoint_path(folder: Path, iteration: int) -> Path:
+    return folder / checkpoint_file(iteration)
+
+
+# ------------------------------------------------------------------------------ random state
+def capture_rng(env_generator: torch.Generator | None = None) -> dict[str, Any]:
+    """Every random-number state a training iteration draws from, as weights-only data."""
+    version, internal, gauss = random.getstate()
+    name, keys, pos, has_gauss, cached = np.random.get_state()
+    state: dict[str, Any] = {
+        "python": {"version": version, "state": torch.tensor(internal, dtype=torch.int64), "gauss": gauss},
+        "numpy": {"name": name, "keys": torch.from_numpy(keys.astype(np.int64)), "pos": int(pos),
+                  "has_gauss": int(has_gauss), "cached_gaussian": float(cached)},
+        "torch": torch.get_rng_state(),
+    }
+    if torch.cuda.is_available() and torch.cuda.is_initialized():
+        state["cuda"] = torch.cuda.get_rng_state_all()
+    if env_generator is not None:
+        state["env"] = env_generator.get_state()
+    return state
+
+
+def restore_rng(state: dict[str, Any], env_generator: torch.Generator | None = None) -> None:
+    """Inverse of `capture_rng` (states absent from an older checkpoint stay as they are)."""
+    if "python" in state:
+        py = state["python"]
+        random.setstate((py["version"], tuple(int(v) for v in py["state"].tolist()), py["gauss"]))
+    if "numpy" in state:
+        npy = state["numpy"]
+        np.random.set_state((npy["name"], npy["keys"].numpy().astype(np.uint32), npy["pos"],
+                             npy["has_gauss"], npy["cached_gaussian"]))
+    if "torch" in state:
+        torch.set_rng_state(state["torch"].cpu())
+    if "cuda" in state and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all([s.cpu() for s in state["cuda"]])
+    if "env" in state and env_generator is not None:
+        env_generator.set_state(state["env"].cpu())

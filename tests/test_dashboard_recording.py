@@ -1,0 +1,44 @@
+"""What an evaluation leaves for the replay (issue 22 item 10): every counted trial of every
+env recorded as an episode of its own, (checkpoint iteration, trial), each from its frame 0,
+and the dashboard's reader lists and loads them all."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from detach.config import resolve
+from detach.envs.lh_env import make_env
+from detach.envs.oracle import random_policy
+from detach.eval.episodes import run_evaluation
+from detach.runs.mcap_log import RunLogWriter
+from server.log_tail import LogTail
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_an_evaluation_records_every_trial_of_every_env(tmp_path: Path) -> None:
+    torch.set_num_threads(1)
+    cfg = resolve(ROOT / "configs/tasks/follow.yaml", "mlp",
+                  ["env.character=puppet", "env.episode_length=30"], seed=2)
+    env = make_env(cfg, num_envs=2, eval_mode=True, verbose=False)
+    policy = random_policy(env, torch.Generator().manual_seed(0))
+    path = tmp_path / "log.mcap"
+    with RunLogWriter(path, flush_every=7) as log:
+        result = run_evaluation(env, lambda obs: policy(obs), trials=4, cfg=cfg, progress=False,
+                                recorder=log, episode_id=12)
+    assert result.trials == 4
+    tail = LogTail(path)
+    tail.refresh()
+    assert tail.episode_keys() == [(12, t) for t in range(4)], "one episode per trial"
+    lengths = []
+    for key in tail.episode_keys():
+        ep = tail.load_episode(key)
+        assert ep.pos.shape[1:] == (15, 3) and np.isfinite(ep.pos).all()
+        np.testing.assert_allclose(np.diff(ep.times), env.dt, rtol=1e-6)  # from frame 0, no gap
+        lengths.append(ep.num_frames)
+    assert all(2 <= n <= 31 for n in lengths), lengths
+    ends = {tuple(np.round(tail.load_episode(k).pos[-1, 0, :2], 3)) for k in tail.episode_keys()}
+    assert len(ends) > 1, "the trials are different episodes, not copies of one"

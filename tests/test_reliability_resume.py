@@ -1,0 +1,75 @@
+"""Resuming never changes the past: a longer run extends its last stage instead of rescaling
+DETACH's schedule, and a stated schedule must keep every completed iteration's stage
+(docs/RELIABILITY.md). Runs here are folders with a stand-in checkpoint: nothing trains."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+import yaml
+
+from detach import cli
+from detach.config import resolve
+from detach.config_schema import StagesCfg
+from detach.runs.folder import RunFolder
+from detach.train.schedule import extend_schedule, stage_at, stage_lengths
+from tests.test_runner_cli import FOLLOW
+
+
+@pytest.fixture()
+def detach_run(tmp_path: Path) -> RunFolder:
+    """A DETACH run of 20 iterations (paper stages 100/400/500 scaled: 2 + 8 + 10), stopped
+    after iteration 14, in its joint stage."""
+    cfg = resolve(FOLLOW, "detach", ["train.max_iterations=20", "env.character=puppet"])
+    assert stage_lengths(cfg.train.stages, 20) == [("pretrain", 2), ("fusion", 8), ("joint", 10)]
+    run = RunFolder.create(tmp_path, cfg)
+    torch.save({"actor_state_dict": {}, "critic_state_dict": {}, "iter": 14,
+                "infos": {"stage": "joint", "model": "detach", "model_kind": "detach"}},
+               run.checkpoints / "model_14.pt")
+    run.set_state("interrupted", iteration=15)
+    return run
+
+
+def _stages_printed(capsys: pytest.CaptureFixture[str]) -> dict[str, int]:
+    return yaml.safe_load(capsys.readouterr().out)["train"]["stages"]
+
+
+def test_training_longer_extends_the_last_stage(detach_run: RunFolder, monkeypatch: pytest.MonkeyPatch,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main(["--resume", str(detach_run.path), "train.max_iterations=40", "--dry-run"]) == 0
+    assert _stages_printed(capsys) == {"pretrain": 2, "fusion": 8, "joint": 30}
+    monkeypatch.setattr("detach.runs.session.train_and_evaluate", lambda *_a, **_k: None)
+    assert cli.main(["--resume", str(detach_run.path), "train.max_iterations=40"]) == 0
+    cfg = detach_run.config()
+    assert cfg.train.max_iterations == 40 and cfg.train.stages == StagesCfg(2, 8, 30)
+    assert stage_lengths(cfg.train.stages, 40) == [("pretrain", 2), ("fusion", 8), ("joint", 30)]
+    assert cli.main(["--resume", str(detach_run.path), "train.max_iterations=50"]) == 0
+    assert detach_run.config().train.stages == StagesCfg(2, 8, 40)
+
+
+def test_a_stated_schedule_may_not_change_completed_iterations(detach_run: RunFolder,
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["--resume", str(detach_run.path), "train.max_iterations=40", "--dry-run"]
+    assert cli.main([*argv, "train.stages.pretrain=2", "train.stages.fusion=20", "train.stages.joint=18"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "puts iteration 10 in 'fusion', but the run trained it in 'joint'" in err[0]
+    assert cli.main([*argv, "train.stages.pretrain=2", "train.stages.fusion=8", "train.stages.joint=30"]) == 0
+    assert _stages_printed(capsys) == {"pretrain": 2, "fusion": 8, "joint": 30}
+    assert detach_run.config().train.stages == StagesCfg(100, 400, 500), "a dry run writes nothing"
+
+
+def test_a_run_cannot_be_resumed_into_fewer_iterations_than_it_did(detach_run: RunFolder,
+                                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main(["--resume", str(detach_run.path), "train.max_iterations=10"]) == 2
+    assert "expected more than the 15 iterations the run has completed, found 10" in capsys.readouterr().err
+
+
+def test_extending_a_schedule_keeps_the_stage_of_every_earlier_iteration() -> None:
+    before = [("pretrain", 2), ("fusion", 8), ("joint", 10)]
+    for total in (20, 21, 40, 1000):
+        after = extend_schedule(before, total)
+        assert sum(k for _n, k in after) == total
+        assert all(stage_at(after, i) == stage_at(before, i) for i in range(20))
+    assert extend_schedule(before, 5) == [("pretrain", 2), ("fusion", 3)]
