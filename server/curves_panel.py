@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 import viser
 
+from detach.run_contract import METRICS_TOPIC
 from server.curves import PALETTE, X_AXES, Chart, chart, curve_groups, matching, run_curves, \
     uplot_options
 from server.run_index import MetricSeries
@@ -112,7 +113,7 @@ def curves_panel(s: Session) -> Panel:
         if not s.selected:
             text = "Tick runs in the **Runs** tab to plot their curves."
         elif not runs:
-            text = "The selected runs have no /metrics messages yet."
+            text = f"The selected runs have no {METRICS_TOPIC} messages yet."
         else:
             text = f"{len(runs)} run(s): " + ", ".join(
                 f"<span style='color:{PALETTE[i % len(PALETTE)]}'>■ {s.labels.get(r, r)}</span>"

@@ -165,8 +165,9 @@ class LogTail:
                     break
                 f.seek(pos)
                 if f.read(len(MAGIC)) != MAGIC:
-                    self.problem = (f"log.mcap: {size - pos} unexpected bytes after the footer"
-                                    if pos else "log.mcap: not an MCAP file (bad magic bytes)")
+                    self.problem = (f"{self.path.name}: {size - pos} unexpected bytes after the "
+                                    f"footer" if pos else
+                                    f"{self.path.name}: not an MCAP file (bad magic bytes)")
                     break
                 pos = self.offset = pos + len(MAGIC)
                 self._expect_magic = self.complete = False
@@ -176,7 +177,7 @@ class LogTail:
             f.seek(pos)
             opcode, length = _REC.unpack(f.read(_REC.size))
             if opcode == 0 or opcode > LAST_OPCODE:
-                self.problem = (f"log.mcap: corrupt record at byte {pos} (opcode {opcode}); "
+                self.problem = (f"{self.path.name}: corrupt record at byte {pos} (opcode {opcode}); "
                                 f"showing what was read before it")
                 break
             end = pos + _REC.size + length
@@ -206,7 +207,7 @@ class LogTail:
                 if len(closing) < len(MAGIC):
                     break  # the closing magic is not there yet
                 if closing != MAGIC:
-                    self.problem = f"log.mcap: bad closing magic at byte {end}"
+                    self.problem = f"{self.path.name}: bad closing magic at byte {end}"
                     break
                 end += len(MAGIC)
                 self.complete = self._expect_magic = True
@@ -257,7 +258,8 @@ class LogTail:
             return _decompress(f.read(data_len), compression, usize)
         except Exception as exc:  # noqa: BLE001 - one bad chunk must not hide the rest
             self.problem = self.problem or (
-                f"log.mcap: chunk at byte {data_offset} does not decompress ({exc}); skipped")
+                f"{self.path.name}: chunk at byte {data_offset} does not decompress ({exc}); "
+                f"skipped")
             return None
 
     def _scan_records(self, records: bytes) -> list[int]:

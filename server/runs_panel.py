@@ -7,6 +7,7 @@ import threading
 
 import viser
 
+from detach.run_contract import CONFIG_FILE, STDOUT_FILE
 from server.run_views import (
     GROUP_BY, config_diff, diff_markdown, filter_runs, runs_table, status_markdown,
 )
@@ -46,9 +47,9 @@ def runs_panel(s: Session) -> Panel:
         status = gui.add_markdown("")
         diff_dd = gui.add_dropdown("Diff with", (NOTHING,))
         diff = gui.add_markdown("")
-        with gui.add_folder("config.yaml", expand_by_default=False):
+        with gui.add_folder(CONFIG_FILE, expand_by_default=False):
             config = gui.add_markdown("")
-        with gui.add_folder("stdout.log (last lines)", expand_by_default=False):
+        with gui.add_folder(f"{STDOUT_FILE} (last lines)", expand_by_default=False):
             stdout = gui.add_markdown("")
     shown: dict[str, object] = {"table": None, "ids": (), "details": None, "diff": None,
                                 "stdout": None}
@@ -130,7 +131,7 @@ def runs_panel(s: Session) -> Panel:
             try:
                 config.content = _code(reader.config_text())
             except OSError as exc:
-                config.content = f"*config.yaml unreadable ({exc.strerror})*"
+                config.content = f"*{CONFIG_FILE} unreadable ({exc.strerror})*"
         tail = reader.stdout_tail()
         if force or tail != shown["stdout"]:
             stdout.content = _code(tail)

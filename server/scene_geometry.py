@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import os
 import re
-import zlib
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -20,7 +19,6 @@ from typing import Any, Sequence
 import numpy as np
 import trimesh
 
-from server.episode import Episode
 
 TARGET_COLOR = (220, 40, 40)
 """Targets whose /scene message names no colour."""

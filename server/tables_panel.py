@@ -10,6 +10,7 @@ from typing import Any
 import viser
 
 from detach.eval.tables import TABLES
+from detach.run_contract import EVAL_GLOB
 from server.session import Panel, Session, chosen, is_quiet
 from server.table_views import build_tables, table_csv, table_html
 
@@ -20,7 +21,7 @@ def tables_panel(s: Session) -> Panel:
     gui = s.gui
     quiet = threading.local()
     scope = gui.add_dropdown("Pool", SCOPES, initial_value=SCOPES[0],
-                             hint="which runs' eval*.json files the tables pool")
+                             hint=f"which runs' {EVAL_GLOB} files the tables pool")
     per_run = gui.add_checkbox("One row per run", False,
                                hint="each pooled run's own row under its pooled row")
     paper = gui.add_checkbox("Paper's numbers", True, hint="the paper's Tables I-III as "
@@ -50,10 +51,10 @@ def tables_panel(s: Session) -> Panel:
                               paper=bool(paper.value))
         state["tables"] = tables
         files = len(evals)
-        text = (f"{files} evaluation file(s) (`eval*.json`) of {len({r for r, _e in evals})} "
+        text = (f"{files} evaluation file(s) (`{EVAL_GLOB}`) of {len({r for r, _e in evals})} "
                 f"run(s) out of {len(ids)} pooled: a rate is over all their trials, with its "
                 f"confidence interval; `n` counts trials and seeds." if evals else
-                "*No `eval*.json` files among these runs yet.*")
+                f"*No `{EVAL_GLOB}` files among these runs yet.*")
         if head.content != text:
             head.content = text
         for name, html in bodies.items():

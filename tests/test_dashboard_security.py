@@ -15,11 +15,10 @@ import urllib.request
 from pathlib import Path
 
 import pytest
-import viser
 from websockets.exceptions import InvalidStatus
 
 from server import launch
-from server.access import AccessPolicy, serve
+from server.access import AccessPolicy
 from server.launch import Launcher, LaunchOptions, LaunchRefused, LaunchRequest, parse_overrides
 from server.scene_geometry import find_mesh
 from tests.dashboard_fixtures import HeadlessClient, make_runs, start_dashboard
