@@ -256,3 +256,73 @@ def test_a_replay_frame_costs_the_server_well_under_a_30_fps_budget(runs: Path) 
     finally:
         client.close()
         server.stop()
+
+
+def test_pins_enlarge_and_view_controls_of_the_curves(runs: Path) -> None:
+    server, dashboard, url = start_dashboard(runs)
+    client = _connect(url, dashboard, 1)
+    try:
+        def charts() -> list[str]:
+            return [e["props"]["title"] for e in client.elements.values()
+                    if e["type"] == "GuiUplotMessage"]
+
+        client.wait_for(lambda: "success/follow" in charts(), what="the success group")
+        assert client.value("Show") == "success (3)"
+        pin = [u for u, e in client.elements.items() if e["type"] == "GuiButtonGroupMessage"
+               and "☆ Pin" in e["props"]["options"]][0]
+        client.send("GuiUpdateMessage", uuid=pin, updates={"value": "☆ Pin"})
+        client.wait_for(lambda: any("★ Unpin" in e["props"].get("options", ())
+                                    for e in client.elements.values()), what="the pin")
+        client.set("Show", "pinned")
+        client.wait_for(lambda: len(charts()) == 1, what="the pinned chart only")
+        client.set("Show", "loss (3)")
+        client.set("Metric filter", "value|amp")
+        client.wait_for(lambda: sorted(charts()) == ["loss/amp", "loss/value"], what="the filter")
+        client.set("Smoothing", 0.5)
+        client.wait_for(lambda: any(len(e["props"]["series"]) == 3 for e in client.elements.values()
+                                    if e["type"] == "GuiUplotMessage"), what="raw + smoothed")
+        client.set("X axis", "samples")
+        client.wait_for(lambda: {e["props"]["axes"][0]["label"] for e in client.elements.values()
+                                 if e["type"] == "GuiUplotMessage"} == {"samples"}, what="samples")
+        enlarge = [u for u, e in client.elements.items() if e["type"] == "GuiButtonGroupMessage"
+                   and "⤢ Enlarge" in e["props"]["options"]][0]
+        before = len(charts())
+        client.send("GuiUpdateMessage", uuid=enlarge, updates={"value": "⤢ Enlarge"})
+        client.wait_for(lambda: len(charts()) == before + 1 and any(
+            e["props"].get("label") == "Close" for e in client.elements.values()),
+            what="the enlarged chart")
+        client.click("Close")
+        client.wait_for(lambda: len(charts()) == before, what="the enlarged chart closed")
+    finally:
+        client.close()
+        server.stop()
+
+
+def test_run_details_diff_and_a_second_run_beside_the_first(runs: Path) -> None:
+    server, dashboard, url = start_dashboard(runs)
+    client = _connect(url, dashboard, 1)
+    try:
+        session = _session(dashboard)
+        ids = sorted(p.name for p in runs.iterdir())
+        client.set("Details of", ids[0])
+        client.set("Diff with", ids[1])
+        client.wait_for(lambda: "key(s) differ" in client.text(), what="the diff")
+        text = client.text()
+        assert "`seed` | 0 | 1" in text and "`model_name` | mlp | detach" in text
+        assert "task_name: lh1" in text, "the config view"
+        client.set("Filter", "detach")
+        client.wait_for(lambda: "1 of 2 runs match the filter" in client.text(), what="the filter")
+        client.set("Group by", "model")
+        client.wait_for(lambda: "**model detach** (1 run)" in client.text(), what="the groups")
+        client.set("Run", ids[0])
+        client.set("Beside it", ids[1])
+        client.wait_for(lambda: "b" in session.replay.episodes, what="run B's episode")
+        view_b = session.replay.episodes["b"]
+        assert view_b.num_frames == 12
+        client.set("Camera follows", True)
+        client.click("Step", "frame ▶")
+        time.sleep(0.5)
+        assert not session.replay.player.playing, "a step pauses"
+    finally:
+        client.close()
+        server.stop()
