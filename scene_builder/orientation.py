@@ -18,10 +18,10 @@ surface on top, and it is stable. For one orientation (Z up, metres or any unit)
 Score = (support - contact) * (1 + top) for a stable orientation: open legs below, best with a
 closed top above (a table scores ~1.75, the same table upside down ~0.0, a chair on its back
 ~0.4), and -1 when unstable (a wedge balancing on its edge). A box, or a sofa on a closed skirt,
-scores the same in every orientation: no evidence, no warning. A warning needs another candidate
-to beat the given orientation by `MARGIN`; only the given up axis turned over ("upside down")
-and the other file convention ("wrong --up") are compared, which kept the procedural library
-free of false warnings (turning a skirted sofa onto its front scores 0.3 over upright).
+scores the same in every orientation: no evidence, no warning. Another candidate must beat the
+given orientation by `MARGIN` per change (other up axis, turned over) to be warned about or
+chosen by `--up auto`; with that the procedural library raises no false warning (a skirted sofa
+turned onto its front scores 0.3 over upright: two changes, short of 0.4).
 
 Also reported, as evidence only: the height of the centroid (fraction of the height) and the
 largest flat horizontal face (area fraction of the footprint, facing up or down).
@@ -40,8 +40,8 @@ from scene_builder.normalize import FLIP, UP_AXES, up_rotation
 BAND = 0.01
 """Thickness of the bottom and top bands, as a fraction of the object's height."""
 MARGIN = 0.2
-"""Score by which another orientation must beat the given one to warn (or for `--up auto`
-to leave the default)."""
+"""Score by which another orientation must beat the given one per change (other axis, turned
+over) to warn, or for `--up auto` to leave the default."""
 UNSTABLE = -1.0
 """Score of an orientation whose centroid is outside its support polygon."""
 COVER_RES = 64

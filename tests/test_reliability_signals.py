@@ -103,6 +103,8 @@ def test_a_reused_pid_is_not_the_run(tmp_path: Path) -> None:
         assert not run.owner_alive()
         fresh = _run_with_status(tmp_path, pid=sleeper.pid, started=time.time() - 7200)
         assert fresh.owner_alive(), "an owner resumed long after the run started is alive"
+        for group in (-1, -os.getpgid(0)):  # kill(-n, 0) would ask about a process group
+            assert not _run_with_status(tmp_path, pid=group).owner_alive()
     finally:
         sleeper.kill()
         sleeper.wait()

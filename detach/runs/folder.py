@@ -104,6 +104,8 @@ def _process_start_time(pid: int) -> float | None:
 def pid_alive(pid: int, since: float | None = None) -> bool:
     """Whether process `pid` of this host exists (and, when `since` is given, started before
     that time, within clock resolution: a pid reused by a newer process is not the run's)."""
+    if int(pid) <= 0:  # 0 and negative numbers name process groups, not a process
+        return False
     try:
         os.kill(int(pid), 0)
     except ProcessLookupError:
