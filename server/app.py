@@ -20,11 +20,11 @@ from server.replay import Ticker
 from server.replay_panel import replay_panel
 from server.run_index import RunIndex
 from server.runs_panel import runs_panel
-from server.session import Panel, Session
+from server.session import NARROW, Panel, Session
 from server.tables_panel import tables_panel
 
-PANEL_WIDTH = 560
-"""Pixels of the side column; each browser can widen it (the curves' wide view)."""
+PANEL_WIDTH = NARROW
+"""Pixels of the side column; each browser can widen it (curves' and tables' wide view)."""
 SETTLED_PER_POLL = 20
 """Finished runs re-checked per poll (round-robin); new and live runs every poll."""
 

@@ -225,8 +225,7 @@ def uplot_options(c: Chart) -> dict:
     from viser import uplot
 
     series = [uplot.Series(label=c.x_axis)] + [
-        uplot.Series(label=label, stroke=color, width=width, spanGaps=True,
-                     points=uplot.Series_Points(show=False))
+        uplot.Series(label=label, stroke=color, width=width, spanGaps=True)
         for label, color, width in zip(c.labels, c.colors, c.widths)]
     y_scale = uplot.Scale(auto=False, range=c.y_range)
     if c.log:

@@ -26,7 +26,8 @@ MAX_CHARTS = 24
 PINNED, ALL = "pinned", "all metrics"
 DEFAULT_GROUPS = ("success", "reward", "episode", "loss")
 """The group shown first, if the runs have it."""
-WIDE, NARROW = 1100, 560
+CHART_HEIGHT = 250
+"""Pixels: the same in both views, so the wide view shows longer time axes, not bigger charts."""
 PINS_KEY = "detach-dashboard-pins"
 """Browser localStorage key of the pinned metrics (pins outlive a reload)."""
 
@@ -50,7 +51,7 @@ def curves_panel(s: Session) -> Panel:
         x_axis = gui.add_dropdown("X axis", X_AXES, initial_value="iteration")
         smoothing = gui.add_slider("Smoothing", min=0.0, max=0.99, step=0.01, initial_value=0.0)
         log_y = gui.add_checkbox("Log scale (y)", False)
-        wide = gui.add_checkbox("Wide view", False, hint="a wider side panel for the charts")
+        s.add_wide_toggle()
     note = gui.add_markdown("")
     holder = gui.add_folder("Charts")
     charts: dict[str, tuple[viser.GuiUplotHandle, viser.GuiButtonGroupHandle, Chart]] = {}
@@ -155,7 +156,7 @@ def curves_panel(s: Session) -> Panel:
             update_enlarged()
 
     def add_chart(key: str, c: Chart, order: int) -> tuple:
-        plot = gui.add_uplot(**uplot_options(c), aspect=2.0, order=2 * order)
+        plot = gui.add_uplot(**uplot_options(c), height=CHART_HEIGHT, order=2 * order)
         buttons = gui.add_button_group(
             "", ("★ Unpin" if key in state["pins"] else "☆ Pin", "⤢ Enlarge"), order=2 * order + 1)
         buttons.on_click(lambda event, key=key: chart_button(key, event.target.value))
@@ -245,10 +246,6 @@ def curves_panel(s: Session) -> Panel:
     def _(_event: object) -> None:
         if not is_quiet(quiet):
             state["user_view"] = True
-
-    @wide.on_update
-    def _(_event: object) -> None:
-        s.gui.main_panel.set_width(WIDE if wide.value else NARROW)
 
     def refresh(changed: set[str]) -> None:
         versions = tuple((r, s.infos[r].log_version) for r in s.selected if r in s.infos)

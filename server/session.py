@@ -30,6 +30,10 @@ class Shared(Protocol):
     launcher: Any
 
 
+WIDE, NARROW = 1100, 560
+"""Side panel widths (px) of the wide view and the normal one (server.app.PANEL_WIDTH)."""
+
+
 def _nothing(*_args: object) -> None:
     return None
 
@@ -85,6 +89,8 @@ class Session:
         """Runs matching this browser's filter box on the Runs tab."""
         self.replay: Replay | None = None
         """This browser's replay (set by the replay panel)."""
+        self._wide_toggles: list[viser.GuiCheckboxHandle] = []
+        self._wide_quiet = threading.local()
         self.panels: list[Panel] = []
         self._defaulted = False
         with self.lock:
@@ -127,6 +133,24 @@ class Session:
                 self.filtered = ids
                 for panel in self.panels:
                     panel.filter_changed()
+
+    def add_wide_toggle(self) -> viser.GuiCheckboxHandle:
+        """A 'Wide view' checkbox (curves and tables have one each, kept in step): a wider
+        side panel for this browser only."""
+        box = self.gui.add_checkbox("Wide view", bool(self._wide_toggles and
+                                                      self._wide_toggles[0].value),
+                                    hint="a wider side panel (this browser only)")
+
+        @box.on_update
+        def _(_event: object) -> None:
+            if is_quiet(self._wide_quiet):
+                return
+            self.gui.main_panel.set_width(WIDE if box.value else NARROW)
+            for other in self._wide_toggles:
+                quietly(self._wide_quiet, other, value=box.value)
+
+        self._wide_toggles.append(box)
+        return box
 
     def open_runs(self) -> set[str]:
         with self.lock:

@@ -26,6 +26,7 @@ def tables_panel(s: Session) -> Panel:
                                hint="each pooled run's own row under its pooled row")
     paper = gui.add_checkbox("Paper's numbers", True, hint="the paper's Tables I-III as "
                              "reference rows")
+    s.add_wide_toggle()
     head = gui.add_markdown("")
     bodies = {name: gui.add_html("") for name in TABLES}
     download = gui.add_button_group("Download CSV", tuple(TABLES))

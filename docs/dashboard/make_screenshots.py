@@ -3,9 +3,9 @@
 Trains two tiny runs on LH1 (DETACH and TokenHSI; puppet character, 3 iterations, evaluated
 on LH1 and LH3 with 2 trials each), or takes an existing runs folder, starts
 `detach-dashboard` on it with the launch form, and drives headless Chromium through the tabs:
-Runs (with one run's details and a config diff), Curves (the runs compared, smoothed, wide
-view), Replay (a second run beside the first, the walked path), Tables (one row per run and
-the paper's numbers) and Launch.
+Runs (with one run's details and a config diff), Replay (a second run beside the first, the
+walked path), Curves (the runs compared, wide view), Tables (one row per run and the paper's
+numbers) and Launch.
 
     python docs/dashboard/make_screenshots.py [--runs DIR] [--out docs/dashboard]
 
@@ -77,27 +77,31 @@ def shoot(url: str, runs: list[str], out: Path) -> None:
             except Error:
                 pass
 
-        page.get_by_role("button", name="Shown").click(force=True)  # compare all runs
+        page.get_by_role("button", name="Shown", exact=True).click(force=True)  # compare all
         select(page, "Diff with", runs[0])
+        page.mouse.move(5, 5)
         time.sleep(3)
         page.screenshot(path=str(out / "runs.png"))
-
-        page.get_by_role("tab", name="Curves").first.click(force=True)
-        page.get_by_label("Wide view").check(force=True)
-        time.sleep(4)
-        page.screenshot(path=str(out / "curves.png"))
-        page.get_by_label("Wide view").uncheck(force=True)
 
         page.get_by_role("tab", name="Replay").first.click(force=True)
         select(page, "Run", runs[-1])
         select(page, "Beside it", runs[0])
+        page.mouse.move(5, 5)
         time.sleep(6)
         page.screenshot(path=str(out / "replay.png"))
 
-        page.get_by_role("tab", name="Tables").first.click(force=True)
-        page.get_by_label("One row per run").check(force=True)
+        page.get_by_role("tab", name="Curves").first.click(force=True)
+        page.get_by_label("Wide view").filter(visible=True).check(force=True)
+        page.mouse.move(5, 5)
         time.sleep(4)
-        page.screenshot(path=str(out / "tables.png"), full_page=True)
+        page.screenshot(path=str(out / "curves.png"))
+
+        page.get_by_role("tab", name="Tables").first.click(force=True)  # still wide
+        page.get_by_label("One row per run").check(force=True)
+        page.mouse.move(5, 5)
+        time.sleep(4)
+        page.screenshot(path=str(out / "tables.png"))
+        page.get_by_label("Wide view").filter(visible=True).uncheck(force=True)
 
         page.get_by_role("tab", name="Launch").first.click(force=True)
         time.sleep(2)
