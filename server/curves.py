@@ -49,13 +49,22 @@ def curve_groups(keys: Sequence[str]) -> dict[str, list[str]]:
     return dict(sorted(groups.items(), key=lambda kv: (kv[0] != "general", kv[0])))
 
 
+MAX_FILTER = 200
+"""Characters of the filter box that count."""
+_NESTED_REPEAT = re.compile(r"[+*}?]\)*\)[+*{?]")
+"""A repeated group that itself ends in a repetition: taken as plain text, not as a regular
+expression (the filter runs on the server, and such patterns can backtrack for minutes)."""
+
+
 def matching(keys: Sequence[str], pattern: str) -> list[str]:
     """Keys matching the filter box: every word of it (case-insensitive) must match, each
     word a regular expression ('loss/(value|surrogate)') or, if it is not a valid one, plain
     text."""
     tests = []
-    for word in pattern.split():
+    for word in pattern[:MAX_FILTER].split():
         try:
+            if _NESTED_REPEAT.search(word):
+                raise re.error("nested repetition")  # '(a+)+' can take exponential time
             tests.append(re.compile(word, re.IGNORECASE).search)
         except re.error:
             tests.append(lambda k, w=word.lower(): w in k.lower())

@@ -10,6 +10,7 @@ arrays or axes changed, so a new iteration costs the charts in view, not all 70.
 from __future__ import annotations
 
 import json
+import math
 import threading
 from typing import Any
 
@@ -74,7 +75,8 @@ def curves_panel(s: Session) -> Panel:
         runs = [(s.labels.get(r, r), series, samples)
                 for r, (series, samples) in state["series"].items()]
         axis = chosen(x_axis, X_AXES, "iteration")
-        return chart(key, run_curves(key, runs, axis), axis, float(np.clip(smoothing.value, 0, 0.99)),
+        weight = float(smoothing.value) if math.isfinite(smoothing.value) else 0.0
+        return chart(key, run_curves(key, runs, axis), axis, float(np.clip(weight, 0, 0.99)),
                      bool(log_y.value))
 
     def shown_keys() -> list[str]:
@@ -259,4 +261,4 @@ def curves_panel(s: Session) -> Panel:
 
     threading.Thread(target=restore_pins, name="pins", daemon=True).start()
     return Panel(refresh=refresh, selection_changed=selection_changed,
-                 open_runs=lambda: set(s.selected), close=close_enlarged)
+                 open_runs=lambda: set(s.selected))

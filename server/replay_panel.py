@@ -8,6 +8,7 @@ frame controls: nothing of the previous run's episode stays on screen.
 
 from __future__ import annotations
 
+import math
 import threading
 from typing import Any
 
@@ -210,12 +211,13 @@ def replay_panel(s: Session) -> Panel:
 
     @speed.on_update
     def _(_event: object) -> None:
-        replay.player.speed = float(min(max(speed.value, 0.1), 4.0))
+        if math.isfinite(speed.value):  # a client can send any number, NaN included
+            replay.player.speed = float(min(max(speed.value, 0.1), 4.0))
 
     @scrub.on_update
     def _(_event: object) -> None:
-        if is_quiet(quiet):
-            return  # our own update from the replay thread
+        if is_quiet(quiet) or not math.isfinite(scrub.value):
+            return  # our own update from the replay thread, or not a frame
         with replay.lock:
             replay.player.seek(int(scrub.value))
             replay.redraw()

@@ -69,11 +69,17 @@ def test_controls_refuse_values_outside_their_options(runs: Path) -> None:
         session = _session(dashboard)
         shown = client.value("Run")
         for label, value in (("Run", "../../etc"), ("Beside it", "nope"), ("Group by", "x"),
-                             ("X axis", "epochs"), ("Pool", "everything")):
+                             ("X axis", "epochs"), ("Pool", "everything"),
+                             ("Speed", float("nan")), ("Frame", float("nan")),
+                             ("Smoothing", float("nan")), ("Metric filter", "(a+)+$" * 50)):
             client.set(label, value)
         time.sleep(0.5)
         dashboard.poll()
         assert session.replay.episode is not None and client.value("Run") in (shown, "../../etc")
+        assert session.replay.player.speed == 1.0 and np.isfinite(session.replay.player.t)
+        client.set("Metric filter", "")  # the nested-repetition filter matched plain text
+        client.wait_for(lambda: any(e["type"] == "GuiUplotMessage"
+                                    for e in client.elements.values()), what="the charts")
         axes = [e["props"]["axes"][0]["label"] for e in client.elements.values()
                 if e["type"] == "GuiUplotMessage"]
         assert axes and set(axes) == {"iteration"}, "an unknown x axis falls back to iteration"

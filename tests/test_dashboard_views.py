@@ -107,6 +107,7 @@ def test_groups_have_one_case_and_the_filter_takes_regex_or_words() -> None:
     assert matching(keys, "reward follow") == ["Reward/follow/position"]
     assert matching(keys, "(unclosed") == [] and matching(keys, "") == keys
     assert matching(["a(b"], "a(b") == ["a(b"], "an invalid expression is plain text"
+    assert matching(["a" * 40 + "!"], "(a+)+$") == [], "nested repetition is plain text (no ReDoS)"
 
 
 # --- runs ---------------------------------------------------------------------------------
