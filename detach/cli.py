@@ -76,6 +76,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="task configuration file (not with --resume/--eval/--sweep)")
     parser.add_argument("overrides", nargs="*", metavar="key=value",
                         help="config overrides (YAML values); +key=value adds a new key")
+    parser.add_argument("--preset", action="append", default=[], metavar="NAME",
+                        help="merge configs/presets/NAME.yaml (or a path) over task and model, before "
+                             "the overrides; repeatable (e.g. paper, tokenhsi_ppo). With --sweep: one "
+                             "of the sweep's presets (e.g. quick, laptop)")
     parser.add_argument("--model", default="detach",
                         help="model name in configs/models/ or a model YAML path "
                              "(default: detach)")
@@ -141,6 +145,14 @@ def build_table_parser() -> argparse.ArgumentParser:
     parser.add_argument("--task", default=None,
                         help="evaluation task to tabulate instead of the paper's (LH1 for "
                              "skills, LH2 and LH3 for generalization, LH3 for ablation)")
+    parser.add_argument("--sgr", choices=["reported", "formula"], default="reported",
+                        help="skill generalisation rate: 'reported' reproduces the paper's values "
+                             "(mean of the novel skills present over S_follow + S_carry), 'formula' "
+                             "is its printed formula (docs/PROTOCOL.md)")
+    which = parser.add_mutually_exclusive_group()
+    which.add_argument("--preset", default=None, metavar="NAME",
+                       help="with a sweep: the cells of this sweep preset (as run with --sweep --preset)")
+    which.add_argument("--quick", action="store_true", help="with a sweep: the cells of its quick preset")
     return parser
 
 
@@ -194,7 +206,8 @@ def _main(argv: Sequence[str] | None = None) -> int:
             from detach.runs.tables_cli import print_table
 
             args = build_table_parser().parse_args(argv[1:])
-            return print_table(args.source, args.runs, args.kind, args.out, args.task)
+            return print_table(args.source, args.runs, args.kind, args.out, args.task, args.sgr,
+                               "quick" if args.quick else args.preset)
         args = build_parser().parse_intermixed_args(argv)
         if (args.resume or args.eval or args.sweep) and args.task:
             # No TASK_YAML in these modes: a positional key=value is an override.
@@ -203,8 +216,10 @@ def _main(argv: Sequence[str] | None = None) -> int:
         if args.sweep:
             from detach.runs.sweep import run_sweep
 
+            if len(args.preset) > 1:
+                raise ConfigError("--sweep takes one --preset (one of the sweep's presets)")
             failed = run_sweep(args.sweep, args.out, args.jobs, args.quick, args.device,
-                               args.launcher)
+                               launcher=args.launcher, preset=next(iter(args.preset), None))
             return 1 if failed else 0
         if args.resume:
             return _resume(args)
@@ -225,7 +240,8 @@ def _train(args: argparse.Namespace) -> int:
             raise ConfigError("task file not found (--eval-on)", str(extra))
     from detach.train.checks import complete_run_config
 
-    cfg = complete_run_config(resolve(args.task, args.model, args.overrides, seed=args.seed, device=args.device))
+    cfg = complete_run_config(resolve(args.task, args.model, args.overrides, seed=args.seed, device=args.device,
+                                      presets=args.preset))
     if args.dry_run:
         sys.stdout.write(dump(cfg))
         print(f"# run folder: {args.out / run_folder_name(cfg)}")

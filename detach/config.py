@@ -256,27 +256,38 @@ def task_name_of(task_path: Path) -> str:
     return Path(task_path).stem
 
 
-def find_model_file(model: str, task_path: Path | None = None) -> Path:
-    """`--model` accepts a file path or a name looked up in configs/models/."""
-    as_path = Path(model)
-    if as_path.suffix in (".yaml", ".yml") or "/" in model:
+def find_config_file(kind: str, name: str, task_path: Path | None = None) -> Path:
+    """A model (`kind` models) or preset (`presets`) YAML given as a file path or a name looked
+    up in configs/<kind>/ beside the task's folder, then under the working directory."""
+    as_path = Path(name)
+    if as_path.suffix in (".yaml", ".yml") or "/" in name:
         return as_path
     roots = []
     if task_path is not None:
-        roots.append(Path(task_path).resolve().parent.parent / "models")
-    roots.append(Path.cwd() / "configs" / "models")
+        roots.append(Path(task_path).resolve().parent.parent / kind)
+    roots.append(Path.cwd() / "configs" / kind)
     for root in roots:
-        candidate = root / f"{model}.yaml"
+        candidate = root / f"{name}.yaml"
         if candidate.exists():
             return candidate
     names = sorted({p.stem for r in roots if r.is_dir() for p in r.glob("*.yaml")})
-    raise ConfigError(f"unknown model '{model}'{suggest(model, names)}; available: "
+    what = kind[:-1]
+    raise ConfigError(f"unknown {what} '{name}'{suggest(name, names)}; available: "
                       f"{', '.join(names) or 'none found'}")
 
 
+def find_model_file(model: str, task_path: Path | None = None) -> Path:
+    """`--model` accepts a file path or a name looked up in configs/models/."""
+    return find_config_file("models", model, task_path)
+
+
 def resolve(task_path: str | Path, model_name: str = "mlp", overrides: Sequence[str] = (),
-            seed: int = 0, device: str = "cpu") -> RunConfig:
-    """Task YAML + model YAML + overrides -> validated RunConfig."""
+            seed: int = 0, device: str = "cpu", presets: Sequence[str] = ()) -> RunConfig:
+    """Task YAML + model YAML + presets (in order) + overrides -> validated RunConfig.
+
+    A preset (configs/presets/NAME.yaml, or a path) holds sections of either kind (sim, env,
+    rewards, eval, model, train) and is merged over the task and model, e.g. the paper's scale
+    or TokenHSI's PPO settings; command-line overrides still win."""
     task_path = Path(task_path)
     data, prov = load_merged(task_path)
     for key in list(data):
@@ -292,6 +303,16 @@ def resolve(task_path: str | Path, model_name: str = "mlp", overrides: Sequence[
                               model_prov.get((key,), ("", None))[1], (key,))
     data.update(model_data)
     prov.update(model_prov)
+    for preset in presets:
+        preset_file = find_config_file("presets", preset, task_path)
+        preset_data, preset_prov = load_merged(preset_file)
+        for key in preset_data:
+            if key not in (*TASK_SECTIONS, *MODEL_SECTIONS):
+                raise ConfigError(f"unknown key{suggest(key, (*TASK_SECTIONS, *MODEL_SECTIONS))}; a preset "
+                                  f"holds only: {', '.join((*TASK_SECTIONS, *MODEL_SECTIONS))}", str(preset_file),
+                                  preset_prov.get((key,), ("", None))[1], (key,))
+        data = deep_merge(data, preset_data, prov, preset_prov)
+        prov.update(preset_prov)
     apply_overrides(data, overrides, prov)
     run_keys = {"task_name": task_name_of(task_path), "model_name": model_file.stem,
                 "seed": seed, "device": device}

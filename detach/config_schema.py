@@ -61,7 +61,9 @@ class TaskCfg:
     humanoid: HumanoidCfg = HumanoidCfg()
     plan: tuple[str, ...] = ("follow",)
     """Skill names (`detach.skills`: follow, carry, climb, sit, plug-ins; `traj` = follow)."""
-    target_object: tuple[int, ...] = (0,)
+    target_object: tuple[int | tuple[int, ...], ...] = (0,)
+    """The object of each plan entry (scene index; for carry the box). A list of indices makes
+    each episode pick one of them at random (e.g. one of nine boxes)."""
     sample_target_from: tuple[str, ...] = ("traj_0",)
     """`traj_K` (trajectory K; procedural when K is `rand`), `tarpos_K`, `scene_K`."""
 
@@ -138,6 +140,10 @@ class RewardsCfg:
     power_coeff: float = 0.0005
     dyn_obj_speed_penalty_coeff: float = 1.0
     dyn_obj_speed_threshold: float = 1.5
+    paid_skills: tuple[str, ...] | None = None
+    """Only subtasks of these skills earn their task reward terms (None: every skill). The
+    zero-shot reading of the paper's protocol trains LH1 with [follow, carry]: climb and sit
+    are never rewarded, so their success measures skill generalisation."""
     terms: dict[str, float] = field(default_factory=dict)
     """Weights of named reward terms (`<skill>/<term>`); printed as a table at start-up."""
 
@@ -171,12 +177,20 @@ class ModelCfg:
     init_noise_std: float | None = None
     """Initial action std of the Gaussian policy; None = the character's (`Character.action_std`),
     filled in when a run is created so that config.yaml records the number."""
+    learn_noise_std: bool = True
+    """Train the action std with PPO; false keeps it at `init_noise_std` (TokenHSI's fixed
+    log-std of -2.9)."""
     obs_normalization: bool = True
     """Running mean/std normalisation of the concatenated observation groups (rsl-rl's
     EmpiricalNormalization) before the network; reconstruction targets are normalised too."""
 
     staged: ClassVar[bool] = False
     """Trained with DETACH's 3-stage protocol (`train.stages`)."""
+
+    def builds_on(self) -> str | None:
+        """The key that makes this model train on top of an earlier stage's weights (then
+        `train.init_from` is required: a frozen random base would train silently), or None."""
+        return None
 
     @classmethod
     def kind_class(cls, kind: str) -> type["ModelCfg"]:
@@ -219,6 +233,10 @@ class AmpCfg:
     """Discriminator mini-batch updates after each PPO update."""
     body_parts: tuple[str, ...] = ()
     """Body-part discriminators (CML): e.g. (upper, lower); empty = one whole-body one."""
+    skill_weights: dict[str, float] = field(default_factory=dict)
+    """With task-specific discrimination: relative frequency of each skill among the reference
+    windows (the skills of the run's plan only; an unlisted one gets the mean weight; empty =
+    uniform)."""
 
 
 @dataclass(frozen=True)
@@ -260,6 +278,12 @@ class TrainCfg:
     num_learning_epochs: int = 5
     num_mini_batches: int = 4
     max_grad_norm: float = 1.0
+    clipped_value_loss: bool = True
+    """PPO's clipped value loss (rsl-rl's default); TokenHSI trains without (`clip_value: False`)."""
+    init_from: str | None = None
+    """Start from another run's weights: a run folder (its latest checkpoint) or a checkpoint
+    file. Policy, critic, their normalisers and the discriminators are loaded; the optimiser
+    and the iteration count start afresh (the progressive protocol: docs/PROTOCOL.md)."""
     per_objective_advantage_norm: bool = False
     """With a multi-head critic (CML), normalise the advantage of each objective before their
     weighted sum; otherwise the weighted sum is normalised as one."""

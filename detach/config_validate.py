@@ -49,6 +49,10 @@ class Builder:
             if value is None and type(None) in args:
                 return None
             inner = [a for a in args if a is not type(None)]
+            if len(inner) > 1:  # e.g. int | tuple[int, ...]: a list takes the sequence type
+                seq = [a for a in inner if typing.get_origin(a) is tuple]
+                plain = [a for a in inner if typing.get_origin(a) is not tuple]
+                inner = (seq + plain) if isinstance(value, list) else (plain + seq)
             return self.build(inner[0], value, path)
         if origin is Literal:
             if value not in args:

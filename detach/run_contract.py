@@ -350,10 +350,16 @@ class RateResult:
     @classmethod
     def from_json(cls, data: Any, where: str) -> "RateResult":
         rate = _number(data, "rate", where)
+        if not 0.0 <= rate <= 1.0:
+            raise ContractError(f"{where}: 'rate' must be in [0, 1], found {rate}")
         ci = _need(data, "ci", list, where)
-        if len(ci) != 2 or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in ci):
-            raise ContractError(f"{where}: 'ci' must be two finite numbers, found {ci!r:.60}")
-        return cls(rate, [float(ci[0]), float(ci[1])], int(_need(data, "n", int, where)))
+        if len(ci) != 2 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                                   and 0.0 <= v <= 1.0 for v in ci) or ci[0] > ci[1]:
+            raise ContractError(f"{where}: 'ci' must be two numbers 0 <= low <= high <= 1, found {ci!r:.60}")
+        n = _need(data, "n", int, where)
+        if n < 0:
+            raise ContractError(f"{where}: 'n' must be >= 0, found {n}")
+        return cls(rate, [float(ci[0]), float(ci[1])], int(n))
 
 
 @dataclass
@@ -368,6 +374,13 @@ class SubtaskResult(RateResult):
                 "mean_time": self.mean_time}
 
 
+SGR_VARIANTS: tuple[str, ...] = ("reported", "formula")
+"""Skill generalisation rate: `formula` = ((S_climb + S_sit) / 2) / ((S_follow + S_carry) / 2)
+as the paper prints it; `reported` = mean of the novel skills the plan has / (S_follow +
+S_carry), which reproduces the values the paper reports (e.g. its LH3 0.13). The default is
+the first."""
+
+
 @dataclass
 class EvalResult:
     """eval.json / eval_<task>.json: the evaluation of one checkpoint on one task."""
@@ -377,25 +390,38 @@ class EvalResult:
     trials: int
     plan: list[str]
     subtasks: list[SubtaskResult]
-    lh_success: RateResult
+    lh_chain: RateResult
     """Every subtask of the plan succeeded in the same episode."""
-    sgr: float
+    lh_mean: RateResult
+    """The mean of the subtask rates (the paper's LH success): the mean over trials of each
+    trial's mean subtask score, with a normal interval."""
+    sgr: dict[str, float]
+    """Skill generalisation rate per variant (`SGR_VARIANTS`)."""
     confidence: float = 0.95
     trained_on: str | None = None
     seed: int | None = None
     checkpoint: str | None = None
     iteration: int | None = None
     mean_execution_time: float | None = None
-    """Mean episode time (s) to plan completion, failure or time-out."""
+    """Mean time (s) from the start of the task to the completion of its last subtask, over the
+    episodes that completed the whole plan (None when none did)."""
     execution_time_ci: list[float] | None = None
+    trial_scores: list[list[float]] | None = None
+    """Per trial, every subtask's score: what tables pool across seeds."""
+
+    @property
+    def lh_success(self) -> RateResult:
+        """The strict LH success (`lh_chain`), by its name in files of earlier versions."""
+        return self.lh_chain
 
     def to_json(self) -> dict[str, Any]:
         return {"task": self.task, "trained_on": self.trained_on, "model": self.model, "seed": self.seed,
                 "checkpoint": self.checkpoint, "iteration": self.iteration, "trials": self.trials,
                 "confidence": self.confidence, "plan": list(self.plan),
                 "subtasks": [s.to_json() for s in self.subtasks],
-                "lh_success": asdict(self.lh_success), "mean_execution_time": self.mean_execution_time,
-                "execution_time_ci": self.execution_time_ci, "sgr": self.sgr}
+                "lh_mean": asdict(self.lh_mean), "lh_chain": asdict(self.lh_chain),
+                "mean_execution_time": self.mean_execution_time, "execution_time_ci": self.execution_time_ci,
+                "sgr": dict(self.sgr), "trial_scores": self.trial_scores}
 
     @classmethod
     def from_json(cls, data: Any, where: str = EVAL_FILE) -> "EvalResult":
@@ -408,10 +434,27 @@ class EvalResult:
                                           mean_time=_number(s, "mean_time", w, optional=True)))
         plan = [str(p) for p in _need(data, "plan", list, where)]
         ci = data.get("execution_time_ci") if isinstance(data, dict) else None
+        chain_key = "lh_chain" if "lh_chain" in data else "lh_success"  # its name before the two LH rates
+        lh_chain = RateResult.from_json(_need(data, chain_key, dict, where), f"{where}: {chain_key}")
+        if "lh_mean" in data:
+            lh_mean = RateResult.from_json(_need(data, "lh_mean", dict, where), f"{where}: lh_mean")
+        else:  # an older file: the mean of its subtask rates, without an interval of its own
+            mean = sum(s.rate for s in subtasks) / max(len(subtasks), 1)
+            lh_mean = RateResult(mean, [mean, mean], lh_chain.n)
+        sgr = data.get("sgr")
+        if isinstance(sgr, (int, float)) and not isinstance(sgr, bool):
+            sgr = {"formula": float(sgr)}
+        if not isinstance(sgr, dict) or not all(isinstance(v, (int, float)) for v in sgr.values()):
+            raise ContractError(f"{where}: 'sgr' must map variants ({', '.join(SGR_VARIANTS)}) to numbers")
+        scores = data.get("trial_scores")
+        if scores is not None and not (isinstance(scores, list) and all(
+                isinstance(t, list) and len(t) == len(plan) and all(isinstance(v, (int, float)) for v in t)
+                for t in scores)):
+            raise ContractError(f"{where}: 'trial_scores' must be one list of {len(plan)} numbers per trial")
         return cls(task=str(_need(data, "task", str, where)), model=str(_need(data, "model", str, where)),
                    trials=int(_need(data, "trials", int, where)), plan=plan, subtasks=subtasks,
-                   lh_success=RateResult.from_json(_need(data, "lh_success", dict, where), f"{where}: lh_success"),
-                   sgr=float(_number(data, "sgr", where)),
+                   lh_chain=lh_chain, lh_mean=lh_mean, sgr={str(k): float(v) for k, v in sgr.items()},
+                   trial_scores=scores,
                    confidence=float(_number(data, "confidence", where, optional=True) or 0.95),
                    trained_on=_need(data, "trained_on", str, where, optional=True),
                    seed=_need(data, "seed", int, where, optional=True),

@@ -121,3 +121,14 @@ def box_corners_fast(pos: torch.Tensor, quat: torch.Tensor, half: torch.Tensor) 
     """As `box_corners` for [N, 3] boxes ([N, 8, 3]), with one batched matrix product."""
     local = _CORNER_SIGNS.to(pos.device) * half[:, None, :]
     return pos[:, None, :] + local @ quat_to_matrix(quat).transpose(-1, -2)
+
+
+def point_box_distance(p: torch.Tensor, box_pos: torch.Tensor, box_quat: torch.Tensor,
+                       half: torch.Tensor) -> torch.Tensor:
+    """Distance (m) from points p [..., 3] to oriented boxes (centre, wxyz quat, half sizes).
+
+    0 inside the box. Broadcasts over leading dimensions.
+    """
+    local = quat_rotate_inverse(box_quat, p - box_pos)
+    excess = (local.abs() - half).clamp(min=0.0)
+    return excess.norm(dim=-1)

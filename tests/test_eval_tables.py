@@ -13,7 +13,7 @@ from detach.run_contract import EvalResult
 
 def _evals(task: str, model: str, plan: list[str], scores: list[list[float]],
            completed: list[bool], trained_on: str = "lh1") -> EvalResult:
-    outcomes = [TrialOutcome(s, [10.0] * len(s), c, 40.0 if c else 60.0)
+    outcomes = [TrialOutcome(s, [10.0] * len(s), c, 40.0 if c else 60.0, 40.0 if c else math.nan)
                 for s, c in zip(scores, completed)]
     result = summarize(plan, outcomes, task=task, model=model)
     result.seed, result.trained_on = 0, trained_on
@@ -28,10 +28,12 @@ def test_summary_rates_times_and_partial_carry() -> None:
     e = _evals("lh1", "detach", LH1, [[1, 1, 1, 1], [1, 0.5, 0, 0], [1, 0, 0, 0],
                                       [0, 0, 0, 0]], [True, False, False, False])
     assert [s.rate for s in e.subtasks] == [0.75, 0.375, 0.25, 0.25]
-    assert e.lh_success.rate == 0.25 and e.trials == 4
-    assert e.mean_execution_time == pytest.approx(55.0)
+    assert e.lh_chain.rate == 0.25 and e.trials == 4
+    assert e.lh_mean.rate == pytest.approx((1 + 0.375 + 0.25 + 0) / 4)  # the mean of each trial's mean
+    assert e.mean_execution_time == pytest.approx(40.0)  # completed episodes only
     assert e.subtasks[0].ci[0] < 0.75 < e.subtasks[0].ci[1]
-    assert e.sgr == pytest.approx((0.25 + 0.25) / (0.75 + 0.375))
+    assert e.sgr["formula"] == pytest.approx((0.25 + 0.25) / (0.75 + 0.375))
+    assert e.sgr["reported"] == pytest.approx((0.25 + 0.25) / 2 / (0.75 + 0.375))
     nan_times = summarize(LH1, [TrialOutcome([0, 0, 0, 0], [math.nan] * 4)])
     assert nan_times.subtasks[2].mean_time is None
 
@@ -49,20 +51,21 @@ def _fixture() -> list[EvalResult]:
 def test_skills_table_markdown_layout() -> None:
     md = skills_table(_fixture()).to_markdown()
     lines = md.strip().splitlines()
-    assert lines[2] == "| Method | Follow | Carry | Climb | Sit | LH1 |"
+    assert lines[2] == "| Method | Follow | Carry | Climb | Sit | LH1 (mean) | LH1 (chain) | n |"
     assert lines[4].startswith("| TokenHSI | 1.00 [") and lines[5].startswith("| DETACH (ours) |")
-    assert lines[5].split(" | ")[-1].startswith("0.50 [")
+    assert lines[5].split(" | ")[-2].startswith("0.50 [") and lines[5].endswith("| 4 (1 seed) |")
 
 
 def test_generalization_table_egr_uses_lh1_of_same_model() -> None:
     table = generalization_table(_fixture())
     rows = {r[1]: r for r in table.rows}
+    egr = table.keys.index("egr")
     detach = rows["DETACH (ours)"]
     assert detach[0] == "LH2" and detach[5].text() == "-"  # LH2 has no climb
-    assert detach[-1].value == pytest.approx(0.25 / 0.5)    # EGR = S_LH2 / S_LH1
-    assert rows["TokenHSI"][-1].value == pytest.approx(0.0)
+    assert detach[egr].value == pytest.approx(0.75 / 0.75)  # EGR = LH2 (mean) / LH1 (mean), same model
+    assert rows["TokenHSI"][egr].value == pytest.approx(0.5 / 0.625)
     csv_text = table.to_csv()
-    assert csv_text.splitlines()[0].startswith("Experiment,Method,Follow,Follow low,Follow high")
+    assert csv_text.splitlines()[0].startswith("experiment,method,follow,carry,follow_2,climb,sit")
     assert "\\begin{tabular}" in table.to_latex()
 
 
@@ -73,6 +76,6 @@ def test_ablation_table_rows() -> None:
                      [[1, 1, 1, 1, r]] * 2, [bool(r)] * 2)
               for m, r in (("detach", 1), ("ablation_a1", 0))]
     md = ablation_table(evals).to_markdown().splitlines()
-    assert md[2] == "| Method | EGR | SGR | LH SR |"
-    assert md[4].startswith("| A1 (w/o env encoder) | 0.00 |")
-    assert md[5].startswith("| DETACH (ours) | 1.00 | 1.000 |")
+    assert md[2] == "| Method | EGR | SGR | LH (mean) | LH (chain) | n |"
+    assert md[4].startswith("| A1 (w/o env encoder) | 0.80 |")
+    assert md[5].startswith("| DETACH (ours) | 1.00 | 0.500 |")  # SGR "reported": mean(climb, sit) / 2

@@ -22,14 +22,51 @@ def test_humanoid_counts_and_names():
     assert sum(len(g.axes) == 3 for g in H.JOINT_GROUPS) == 10  # abdomen, neck, shoulders, hips, knees, ankles
     assert [g.name for g in H.JOINT_GROUPS if len(g.axes) == 1] == ["right_elbow", "left_elbow"]
     assert m.nu == 32 and [m.actuator(i).name for i in range(m.nu)] == list(H.DOF_NAMES)
-    knee = m.joint("right_knee_x").range
-    assert np.allclose(knee, np.deg2rad([-5.6, 5.6]))
-    assert np.allclose(m.joint("left_knee_y").range, [0.0, np.deg2rad(160.0)])
     geom_types = set(int(t) for t in m.geom_type[1:])
     assert geom_types <= {int(mujoco.mjtGeom.mjGEOM_CAPSULE), int(mujoco.mjtGeom.mjGEOM_SPHERE),
                           int(mujoco.mjtGeom.mjGEOM_BOX)}
     assert m.opt.timestep == 1.0 / 120.0
     assert 40.0 < m.body_subtreemass[1] < 75.0
+
+
+# TokenHSI's phys_humanoid_v3.xml, written out by hand: hinge -> (range in degrees,
+# stiffness, damping, motor gear, armature). Armature is the one value that differs (see
+# `body.ARMATURE` for why).
+TOKENHSI_HINGES = {
+    "abdomen_x": ((-60, 60), 1000, 100, 200, .02), "abdomen_y": ((-60, 90), 1000, 100, 200, .02),
+    "abdomen_z": ((-50, 50), 1000, 100, 200, .02),
+    "neck_x": ((-50, 50), 100, 10, 50, .01), "neck_y": ((-40, 60), 100, 10, 50, .01),
+    "neck_z": ((-45, 45), 100, 10, 50, .01),
+    "right_shoulder_x": ((-180, 45), 400, 40, 100, .02), "right_shoulder_y": ((-180, 60), 400, 40, 100, .02),
+    "right_shoulder_z": ((-90, 90), 400, 40, 100, .02), "right_elbow_y": ((-160, 0), 300, 30, 70, .01),
+    "left_shoulder_x": ((-45, 180), 400, 40, 100, .02), "left_shoulder_y": ((-180, 60), 400, 40, 100, .02),
+    "left_shoulder_z": ((-90, 90), 400, 40, 100, .02), "left_elbow_y": ((-160, 0), 300, 30, 70, .01),
+    "right_hip_x": ((-60, 15), 500, 50, 200, .02), "right_hip_y": ((-140, 60), 500, 50, 200, .02),
+    "right_hip_z": ((-60, 35), 500, 50, 200, .02),
+    "right_knee_x": ((-5.625, 5.625), 500, 50, 150, .02), "right_knee_y": ((0, 160), 500, 50, 150, .02),
+    "right_knee_z": ((-5.625, 5.625), 500, 50, 150, .02),
+    "right_ankle_x": ((-30, 30), 400, 40, 90, .01), "right_ankle_y": ((-55, 55), 400, 40, 90, .01),
+    "right_ankle_z": ((-40, 40), 400, 40, 90, .01),
+    "left_hip_x": ((-15, 60), 500, 50, 200, .02), "left_hip_y": ((-140, 60), 500, 50, 200, .02),
+    "left_hip_z": ((-35, 60), 500, 50, 200, .02),
+    "left_knee_x": ((-5.625, 5.625), 500, 50, 150, .02), "left_knee_y": ((0, 160), 500, 50, 150, .02),
+    "left_knee_z": ((-5.625, 5.625), 500, 50, 150, .02),
+    "left_ankle_x": ((-30, 30), 400, 40, 90, .01), "left_ankle_y": ((-55, 55), 400, 40, 90, .01),
+    "left_ankle_z": ((-40, 40), 400, 40, 90, .01),
+}
+
+
+def test_actuation_matches_tokenhsi_character():
+    """Ranges, PD gains and torque limits of every hinge are TokenHSI's; armature is ours."""
+    m = build_character_model("humanoid")
+    assert sorted(TOKENHSI_HINGES) == sorted(H.DOF_NAMES)
+    for name, ((lo, hi), kp, kd, gear, tokenhsi_armature) in TOKENHSI_HINGES.items():
+        joint, act = m.joint(name), m.actuator(name)
+        assert np.allclose(joint.range, np.deg2rad([lo, hi])), name
+        assert np.allclose(act.ctrlrange, joint.range), name
+        assert act.gainprm[0] == kp and np.allclose(act.biasprm[:3], [0.0, -kp, -kd]), name
+        assert np.allclose(act.forcerange, [-gear, gear]), name
+        assert m.dof_armature[joint.dofadr[0]] == H.ARMATURE > 2 * tokenhsi_armature, name
 
 
 def test_humanoid_stands_on_default_pose():

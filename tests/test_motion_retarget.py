@@ -86,10 +86,12 @@ def test_random_poses_keep_bone_directions():
     bvh = read_bvh(KNEE_BVH)
     f = 40
     q = np.tile(bvh.local_quat[:1], (f, 1, 1))
-    for j in ("LeftUpLeg", "RightUpLeg", "Spine", "LeftArm", "RightArm", "Hips"):
+    # up to 0.5 rad, 0.25 at the hips (whose inward range stops at 15 degrees)
+    for j, most in (("LeftUpLeg", 0.25), ("RightUpLeg", 0.25), ("Spine", 0.5), ("LeftArm", 0.5),
+                    ("RightArm", 0.5), ("Hips", 0.5)):
         ax = rng.normal(size=(f, 3))
         ax /= np.linalg.norm(ax, axis=1, keepdims=True)
-        q[:, bvh.index(j)] = quat_mul(q[:, bvh.index(j)], quat_from_axis_angle(ax, rng.uniform(0, 0.5, f)))
+        q[:, bvh.index(j)] = quat_mul(q[:, bvh.index(j)], quat_from_axis_angle(ax, rng.uniform(0, most, f)))
     q[:, bvh.index("LeftLeg")] = quat_from_axis_angle(np.array([1.0, 0, 0]), rng.uniform(0, 2.0, f))
     bvh.local_quat, bvh.root_pos = q, np.tile(bvh.root_pos[:1], (f, 1))
     jmap = load_map("cmu")

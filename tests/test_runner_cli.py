@@ -122,29 +122,6 @@ def test_eval_on_another_task_writes_its_own_file(tmp_path: Path) -> None:
     assert result.plan == ["sit"] and not run.eval_path.exists()
 
 
-def test_two_cell_quick_sweep_resumes_and_prints_its_table(tmp_path: Path) -> None:
-    sweep = tmp_path / "mini.yaml"
-    sweep.write_text(
-        f"name: mini\ntasks: ['{FOLLOW}']\nmodels: [mlp, tokenhsi]\nseeds: [0]\n"
-        f"eval_trials: 100\ntable: ablation\nquick:\n  eval_trials: 2\n  overrides: "
-        f"[train.max_iterations=1, {', '.join(TINY)}]\n")
-    out = tmp_path / "runs"
-    assert cli.main(["--sweep", str(sweep), "--quick", "--jobs", "2", "--out", str(out)]) == 0
-    runs = find_runs(out)
-    assert sorted(r.status().cell for r in runs) == ["mini/follow/mlp/s0",
-                                                        "mini/follow/tokenhsi/s0"]
-    assert all(r.status().state == "finished" and r.eval_result().trials == 2
-               for r in runs)
-    stamps = {r.path: r.status_path.stat().st_mtime for r in runs}
-    assert cli.main(["--sweep", str(sweep), "--quick", "--out", str(out)]) == 0
-    assert {r.path: r.status_path.stat().st_mtime for r in find_runs(out)} == stamps
-    assert cli.main(["table", str(out), "--kind", "skills", "--task", "follow"]) == 0
-    table = (out / "tables" / "runs_skills.md").read_text()
-    assert "| MLP |" in table and "| TokenHSI |" in table
-    assert (out / "tables" / "runs_skills.csv").exists()
-    assert (out / "tables" / "runs_skills.tex").exists()
-
-
 def test_list_shows_runs_and_unreadable_folders(tmp_path: Path,
                                                 capsys: pytest.CaptureFixture[str]) -> None:
     assert cli.main([FOLLOW, "--model", "mlp", "--out", str(tmp_path), "--no-eval",
@@ -171,25 +148,6 @@ def test_bad_invocations_are_one_line_errors(argv: list[str], message: str,
     assert cli.main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0]
-
-
-@pytest.mark.slow
-def test_sweep_on_a_local_ray(tmp_path: Path) -> None:
-    pytest.importorskip("ray")
-    sweep = tmp_path / "rayed.yaml"
-    sweep.write_text(
-        f"name: rayed\ntasks: ['{FOLLOW}']\nmodels: [mlp, cml]\nseeds: [0]\n"
-        f"eval_trials: 2\noverrides: [train.max_iterations=1, {', '.join(TINY)}]\n")
-    out = tmp_path / "runs"
-    code = cli.main(["--sweep", str(sweep), "--launcher", "ray", "--jobs", "2", "--out", str(out)])
-    import ray
-
-    ray.shutdown()
-    assert code == 0
-    runs = find_runs(out)
-    assert sorted(r.status().cell for r in runs) == ["rayed/follow/cml/s0",
-                                                        "rayed/follow/mlp/s0"]
-    assert all(r.status().state == "finished" and r.eval_result() for r in runs)
 
 
 def test_resume_refuses_a_run_whose_process_is_alive(tmp_path: Path,

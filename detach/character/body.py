@@ -2,7 +2,7 @@
 
 Proportions follow the AMP/TokenHSI character: 15 rigid bodies, 12 controllable joints with
 32 hinge degrees of freedom (3-DoF abdomen, neck, shoulders, hips, knees and ankles as three
-hinges x/y/z each; 1-DoF elbows). Knees are 3-DoF like TokenHSI's (x/z limited to +-5.6 deg,
+hinges x/y/z each; 1-DoF elbows). Knees are 3-DoF like TokenHSI's (x/z limited to +-5.625 deg,
 y 0..160 deg). Frames: the character faces +X, +Y is its left, +Z is up; at the default pose
 (all hinges 0) it stands upright with its arms hanging down and the pelvis origin
 `START_HEIGHT` above the floor.
@@ -54,29 +54,41 @@ class JointGroup:
     """Actuator force limit, N m."""
 
 
-def _sym(a: float) -> tuple[float, float]:
-    return (-a, a)
+def _deg(*ranges: tuple[float, float]) -> tuple[tuple[float, float], ...]:
+    return tuple((float(np.deg2rad(lo)), float(np.deg2rad(hi))) for lo, hi in ranges)
 
 
-_KNEE = (_sym(np.deg2rad(5.6)), (0.0, np.deg2rad(160.0)), _sym(np.deg2rad(5.6)))
+_KNEE = _deg((-5.625, 5.625), (0.0, 160.0), (-5.625, 5.625))
 
 JOINT_GROUPS: tuple[JointGroup, ...] = (
-    JointGroup("abdomen", "torso", "xyz", (_sym(0.6), (-0.8, 1.2), _sym(0.8)), 600, 60, 250),
-    JointGroup("neck", "head", "xyz", (_sym(0.8), _sym(0.8), _sym(1.2)), 150, 15, 60),
+    JointGroup("abdomen", "torso", "xyz", _deg((-60, 60), (-60, 90), (-50, 50)), 1000, 100, 200),
+    JointGroup("neck", "head", "xyz", _deg((-50, 50), (-40, 60), (-45, 45)), 100, 10, 50),
     JointGroup("right_shoulder", "right_upper_arm", "xyz",
-               ((-3.0, 0.5), (-3.1, 1.0), _sym(1.5)), 300, 30, 120),
-    JointGroup("right_elbow", "right_lower_arm", "y", ((-2.6, 0.0),), 200, 20, 80),
+               _deg((-180, 45), (-180, 60), (-90, 90)), 400, 40, 100),
+    JointGroup("right_elbow", "right_lower_arm", "y", _deg((-160, 0)), 300, 30, 70),
     JointGroup("left_shoulder", "left_upper_arm", "xyz",
-               ((-0.5, 3.0), (-3.1, 1.0), _sym(1.5)), 300, 30, 120),
-    JointGroup("left_elbow", "left_lower_arm", "y", ((-2.6, 0.0),), 200, 20, 80),
-    JointGroup("right_hip", "right_thigh", "xyz", (_sym(1.0), (-2.4, 0.9), _sym(1.0)), 500, 50, 250),
-    JointGroup("right_knee", "right_shin", "xyz", _KNEE, 500, 50, 200),
-    JointGroup("right_ankle", "right_foot", "xyz", (_sym(0.6), _sym(1.0), _sym(0.6)), 300, 30, 120),
-    JointGroup("left_hip", "left_thigh", "xyz", (_sym(1.0), (-2.4, 0.9), _sym(1.0)), 500, 50, 250),
-    JointGroup("left_knee", "left_shin", "xyz", _KNEE, 500, 50, 200),
-    JointGroup("left_ankle", "left_foot", "xyz", (_sym(0.6), _sym(1.0), _sym(0.6)), 300, 30, 120),
+               _deg((-45, 180), (-180, 60), (-90, 90)), 400, 40, 100),
+    JointGroup("left_elbow", "left_lower_arm", "y", _deg((-160, 0)), 300, 30, 70),
+    JointGroup("right_hip", "right_thigh", "xyz", _deg((-60, 15), (-140, 60), (-60, 35)), 500, 50, 200),
+    JointGroup("right_knee", "right_shin", "xyz", _KNEE, 500, 50, 150),
+    JointGroup("right_ankle", "right_foot", "xyz", _deg((-30, 30), (-55, 55), (-40, 40)), 400, 40, 90),
+    JointGroup("left_hip", "left_thigh", "xyz", _deg((-15, 60), (-140, 60), (-35, 60)), 500, 50, 200),
+    JointGroup("left_knee", "left_shin", "xyz", _KNEE, 500, 50, 150),
+    JointGroup("left_ankle", "left_foot", "xyz", _deg((-30, 30), (-55, 55), (-40, 40)), 400, 40, 90),
 )
-"""The 12 controllable joints (32 hinges) in actuator/DoF order."""
+"""The 12 controllable joints (32 hinges) in actuator/DoF order.
+
+Ranges, PD gains (kp = the joint's `stiffness`, kd = its `damping`) and torque limits (the
+motor `gear`, which IsaacGym uses as the drive's effort limit) are those of TokenHSI's
+character, `phys_humanoid_v3.xml` in liangpan99/TokenHSI, so that a policy meets the same
+actuation limits as in the paper; `tests/test_humanoid.py` compares them hinge by hinge.
+Armature is the one value we keep our own (`ARMATURE`)."""
+
+ARMATURE = 0.08
+"""Rotor inertia added to every hinge, kg m^2. TokenHSI uses 0.01-0.02, which PhysX's
+implicit joint drives tolerate; in MuJoCo (`implicitfast`, dt = 1/120 s) with these gains the
+humanoid diverged (bad QACC) within 3 s on 6 of 6 seeds of full-range random PD targets,
+0.04 held, and 0.08 gives twice that margin."""
 
 BODY_NAMES: tuple[str, ...] = (
     "pelvis", "torso", "head",
@@ -156,7 +168,7 @@ def _add_geoms(body: mujoco.MjsBody, geoms: tuple, friction: float) -> None:
 
 
 def add_body(parent: mujoco.MjsBody, spec: mujoco.MjSpec, add_root: Callable[[mujoco.MjsBody], None],
-             friction: float = 1.0, armature: float = 0.08) -> dict[str, mujoco.MjsBody]:
+             friction: float = 1.0) -> dict[str, mujoco.MjsBody]:
     """Add the 15 bodies, 32 hinges and their PD actuators under `parent`; returns the bodies.
 
     `add_root(pelvis)` adds the character's root joint(s) to the pelvis before anything else,
@@ -183,7 +195,7 @@ def add_body(parent: mujoco.MjsBody, spec: mujoco.MjSpec, add_root: Callable[[mu
             j.axis = _AXES[axis]
             j.range = rng
             j.limited = mujoco.mjtLimited.mjLIMITED_TRUE
-            j.armature = armature
+            j.armature = ARMATURE
     for g in JOINT_GROUPS:
         for axis, rng in zip(g.axes, g.ranges):
             a = spec.add_actuator(name=f"{g.name}_{axis}", target=f"{g.name}_{axis}")

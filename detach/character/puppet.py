@@ -35,7 +35,7 @@ import torch
 from detach.character.actions import pd_actions, pd_targets
 from detach.character.base import Character, ScriptedCommand, register_character
 from detach.character.body import NUM_DOF, START_HEIGHT
-from detach.torch_math import quat_conj, quat_mul, quat_rotate, quat_rotate_inverse, rotate_yaw, wrap_angle
+from detach.torch_math import point_box_distance, quat_conj, quat_mul, quat_rotate, rotate_yaw, wrap_angle
 
 ROOT_JOINTS: tuple[str, ...] = ("root_x", "root_y", "root_z", "root_yaw")
 ROOT_ACTUATORS: tuple[str, ...] = ("root_vx", "root_vy", "root_z", "root_wz")
@@ -69,17 +69,6 @@ def root_ctrl(actions: torch.Tensor, yaw: torch.Tensor) -> torch.Tensor:
 def height_to_action(z: torch.Tensor | float) -> torch.Tensor | float:
     """Inverse of the height mapping: the action value that targets pelvis height z (m)."""
     return (z - START_HEIGHT) / ROOT_HEIGHT_SCALE
-
-
-def point_box_distance(p: torch.Tensor, box_pos: torch.Tensor, box_quat: torch.Tensor,
-                       half: torch.Tensor) -> torch.Tensor:
-    """Distance (m) from points p [..., 3] to oriented boxes (centre, wxyz quat, half sizes).
-
-    0 inside the box. Broadcasts over leading dimensions.
-    """
-    local = quat_rotate_inverse(box_quat, p - box_pos)
-    excess = (local.abs() - half).clamp(min=0.0)
-    return excess.norm(dim=-1)
 
 
 def grasp_condition(hands: torch.Tensor, box_pos: torch.Tensor, box_quat: torch.Tensor,

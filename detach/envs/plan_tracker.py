@@ -44,14 +44,17 @@ class PlanTracker:
         self.start_step, self.end_step = z(n, s) - 1, z(n, s) - 1
         self.stats = {k: z(n, s, dtype=dt) for sk in self.skills.values() for k, dt in sk.stats.items()}
         self.advanced = False
+        self.objects = self.tensors.obj.expand(n, s).clone()
+        """[N, S] each env's object of every subtask (drawn at reset where the plan gives choices)."""
+        self.choices = {i: torch.tensor(sub.choices, device=d) for i, sub in enumerate(plan) if sub.choices}
 
     # ------------------------------------------------------------------ per step
     def context(self, st: SimState, steps: torch.Tensor, held: torch.Tensor, joint_power_weight: float
                 ) -> SkillContext:
         """The skills' view of this step, with each env's target and distance filled in."""
         sub, plan = self.subtask, self.tensors
-        obj = plan.obj[sub]
         n, dev = len(sub), self.services.device
+        obj = self.objects[torch.arange(n, device=dev), sub]
         if self.index.obj_body.numel():
             oc = obj.clamp(min=0)
             ar = torch.arange(n, device=dev)
@@ -118,6 +121,9 @@ class PlanTracker:
             self.services.trajectory.park(ids[park], root_xy[park])
 
     def reset(self, ids: torch.Tensor, steps: torch.Tensor, root_xy: torch.Tensor) -> None:
+        for i, options in self.choices.items():
+            pick = torch.randint(len(options), (len(ids),), generator=self.services.generator).to(options.device)
+            self.objects[ids, i] = options[pick]
         self.subtask[ids] = 0
         self.hold[ids] = 0
         self.done[ids] = False

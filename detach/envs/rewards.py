@@ -6,7 +6,8 @@ are paid. Two penalties apply always: `penalty/power` = -power_coeff * sum |torq
 velocity| over the 32 hinges (W, scaled by the character's `joint_power_weight`), and
 `penalty/dyn_obj_speed` = -coeff * sum over dynamic objects of max(0, speed - threshold)
 (m/s) to discourage kicking or throwing boxes. `RewardManager.table()` lists the active
-terms with their weights at start-up.
+terms with their weights at start-up. `rewards.paid_skills` limits the paid terms to some
+skills (the zero-shot reading of the paper's protocol: climb and sit never rewarded).
 """
 
 from __future__ import annotations
@@ -47,7 +48,9 @@ class RewardManager:
         self.cfg = cfg
         self.fns = {name: fn for name, (fn, _w) in terms.items()}
         self.weights = {name: weights.get(name, w) for name, (_fn, w) in terms.items()}
-        self.active = {n: w for n, w in self.weights.items() if w != 0.0}
+        paid = None if cfg.paid_skills is None else {canonical_name(s) for s in cfg.paid_skills}
+        self.active = {n: w for n, w in self.weights.items()
+                       if w != 0.0 and (paid is None or n.split("/")[0] in paid)}
         self.skill_of = {n: skill_index(n.split("/")[0]) for n in self.active}
 
     def table(self) -> str:

@@ -81,5 +81,7 @@ def run_evaluation(env, policy: Policy, trials: int, cfg: RunConfig, recorder: E
 def _outcome(prog: dict[str, torch.Tensor], i: int, dt: float) -> TrialOutcome:
     scores = prog["score"][i].float().tolist()
     times = prog["exec_time"][i].float().tolist()
+    last_end = int(prog["end"][i, -1])
     return TrialOutcome(scores=scores, times=times, completed=bool(prog["lh_success"][i]),
-                        total_time=float(prog["length"][i]) * dt)
+                        total_time=float(prog["length"][i]) * dt,
+                        completion_time=last_end * dt if last_end >= 0 else float("nan"))

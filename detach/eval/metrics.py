@@ -96,11 +96,24 @@ NOVEL_SKILLS = ("climb", "sit")
 """The paper's skills acquired compositionally (the numerator of SGR)."""
 
 
-def sgr(plan: Sequence[str], subtask_rates: Sequence[float]) -> float:
-    """Skill generalisation rate ((S_climb + S_sit)/2) / ((S_follow + S_carry)/2)."""
+def sgr(plan: Sequence[str], subtask_rates: Sequence[float], variant: str = "reported") -> float:
+    """Skill generalisation rate (variants: `detach.run_contract.SGR_VARIANTS`).
+
+    `formula`, as the paper prints it: ((S_climb + S_sit) / 2) / ((S_follow + S_carry) / 2),
+    a skill the plan lacks counting 0. `reported`, what reproduces the paper's own values:
+    the mean of the novel skills the plan has, over S_follow + S_carry (LH3 DETACH: (0.40 +
+    0.10) / 2 / (1.00 + 0.95) = 0.13; the formula gives 0.26). Both agree on LH2.
+    """
     learned = sum(skill_rate(plan, subtask_rates, s) for s in LEARNED_SKILLS)
-    novel = sum(skill_rate(plan, subtask_rates, s) for s in NOVEL_SKILLS)
-    return novel / learned if learned > 0 else 0.0
+    if learned <= 0:
+        return 0.0
+    if variant == "formula":
+        return sum(skill_rate(plan, subtask_rates, s) for s in NOVEL_SKILLS) / learned
+    if variant != "reported":
+        raise ValueError(f"unknown SGR variant {variant!r}; expected reported or formula")
+    present = [s for s in NOVEL_SKILLS if any(_canonical(p) == s for p in plan)]
+    novel = sum(skill_rate(plan, subtask_rates, s) for s in present) / max(len(present), 1)
+    return novel / learned
 
 
 def egr(lh_rate: float, lh1_rate: float) -> float:

@@ -1,7 +1,9 @@
 """From per-trial outcomes to the `EvalResult` of eval.json (`detach.run_contract`).
 
-Subtask rates use the paper's definitions (carry: grasp only = 0.5); an execution time runs
-from the subtask's start to the next subtask's start, a failure or the time-out.
+Subtask rates use the paper's definitions (carry: grasp only = 0.5). Two LH rates: `lh_mean`,
+the mean of the subtask rates (the paper's), and `lh_chain`, every subtask in one episode.
+The execution time runs from the start of the task to the completion of its last subtask, over
+completed episodes (the paper's Time(s); our episodes are capped at `env.episode_length`).
 """
 
 from __future__ import annotations
@@ -11,7 +13,7 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 from detach.eval.metrics import mean_interval, sgr, success_rate
-from detach.run_contract import EvalResult, RateResult, SubtaskResult
+from detach.run_contract import SGR_VARIANTS, EvalResult, RateResult, SubtaskResult
 
 
 @dataclass
@@ -26,6 +28,8 @@ class TrialOutcome:
     """The whole skill sequence was completed (LH success)."""
     total_time: float = math.nan
     """Seconds from the start to plan completion, failure or time-out."""
+    completion_time: float = math.nan
+    """Seconds from the start to the completion of the last subtask (NaN if not completed)."""
 
 
 def summarize(plan: Sequence[str], outcomes: Sequence[TrialOutcome], confidence: float = 0.95,
@@ -38,11 +42,15 @@ def summarize(plan: Sequence[str], outcomes: Sequence[TrialOutcome], confidence:
         mean_time = sum(times) / len(times) if times else None
         subtasks.append(SubtaskResult(rate.value, [rate.low, rate.high], rate.n, index=i, skill=skill,
                                       mean_time=mean_time))
-    lh = success_rate([1.0 if o.completed else 0.0 for o in outcomes], confidence)
-    totals = [o.total_time for o in outcomes if not math.isnan(o.total_time)]
-    mean_time, low, high = mean_interval(totals, confidence)
+    chain = success_rate([1.0 if o.completed else 0.0 for o in outcomes], confidence)
+    mean = success_rate([sum(o.scores) / max(len(o.scores), 1) for o in outcomes], confidence)
+    times = [o.completion_time for o in outcomes if not math.isnan(o.completion_time)]
+    mean_time, low, high = mean_interval(times, confidence)
+    rates = [s.rate for s in subtasks]
     return EvalResult(task=task, model=model, trials=len(outcomes), plan=list(plan), subtasks=subtasks,
-                      lh_success=RateResult(lh.value, [lh.low, lh.high], lh.n),
-                      sgr=sgr(plan, [s.rate for s in subtasks]), confidence=confidence,
+                      lh_chain=RateResult(chain.value, [chain.low, chain.high], chain.n),
+                      lh_mean=RateResult(mean.value, [mean.low, mean.high], mean.n),
+                      sgr={v: sgr(plan, rates, v) for v in SGR_VARIANTS}, confidence=confidence,
                       mean_execution_time=None if math.isnan(mean_time) else mean_time,
-                      execution_time_ci=None if math.isnan(mean_time) else [low, high])
+                      execution_time_ci=None if math.isnan(mean_time) else [low, high],
+                      trial_scores=[[float(v) for v in o.scores] for o in outcomes])

@@ -1,24 +1,32 @@
-"""The paper's tables from eval.json files, as Markdown, CSV and LaTeX.
+"""The paper's tables from evaluation results (`EvalResult`), as Markdown, CSV and LaTeX.
 
-- Table I ("skills"): Method | Follow | Carry | Climb | Sit | LH1, evaluations on LH1; a
-  plug-in skill that appears in the evaluated plans gets its own column after the four.
+- Table I ("skills"): Method | Follow | Carry | Climb | Sit | LH (mean) | LH (chain) | n, on
+  LH1; a plug-in skill used by the evaluated plans gets its own column after the four.
 - Table II ("generalization"): per experiment (LH2, LH3) and method, the subtask rates in the
   paper's column order Follow | Carry | Follow | Climb | Sit ('-' where the plan lacks one),
-  Time(s), LH., SGR., EGR.; EGR divides by the same model's LH1 success rate.
-- Table III ("ablation"): Method | EGR | SGR | LH SR on LH3.
-Several seeds of one (task, model) pool their trials: rates are trial-weighted means and the
-interval is recomputed on the pooled trials.
+  Time(s), LH (mean), LH (chain), SGR, EGR, n. EGR divides by the same model's LH1 rate.
+- Table III ("ablation"): Method | EGR | SGR | LH (mean) | LH (chain) | n on LH3.
+
+LH (mean) is the paper's LH success (the mean of the subtask rates: its Table I LH column is
+0.30 / 0.55 / 0.72 from its own subtask rates), LH (chain) the stricter "every subtask in one
+episode". EGR = LH_i / LH_1 on the mean rates; SGR follows `sgr_variant` (default "reported",
+see `detach.eval.metrics.sgr`). Several seeds of one (task, model) pool their trials: a rate
+is the mean over all trials with the interval of `success_rate` on them (Wilson for 0/1
+scores, normal for partial credit, as in eval.json); a cell also shows the spread across
+seeds (± the std of the per-seed rates) when there are several, and `n` the pooled trials and
+seeds. Files of older versions without per-trial scores pool trial-weighted rates.
 """
 
 from __future__ import annotations
 
 import csv
 import io
+import statistics
 from dataclasses import dataclass, field
-from typing import Any, Iterable, Sequence
+from typing import Callable, Iterable, Sequence
 
-from detach.eval.metrics import LEARNED_SKILLS, NOVEL_SKILLS, egr, wilson_interval
-from detach.run_contract import EvalResult
+from detach.eval.metrics import LEARNED_SKILLS, NOVEL_SKILLS, egr, sgr, success_rate, wilson_interval
+from detach.run_contract import SGR_VARIANTS, EvalResult
 from detach.skills import canonical_name, display_name, skill_names
 
 METHOD_NAMES = {"cml": "CML", "tokenhsi": "TokenHSI", "detach": "DETACH (ours)",
@@ -28,6 +36,8 @@ METHOD_ORDER = ["mlp", "cml", "tokenhsi", "ablation_a1", "ablation_a2", "detach"
 PAPER_SKILLS = (*LEARNED_SKILLS, *NOVEL_SKILLS)
 LH_COLUMNS = [("follow", 0), ("carry", 0), ("follow", 1), ("climb", 0), ("sit", 0)]
 """Paper's Table II columns: (skill, occurrence of that skill in the plan)."""
+TIME_NOTE = ("Time(s): start of the task to completion of its last subtask, completed episodes only; our "
+             "episodes are capped at env.episode_length (40 s) while the paper reports 85-103 s.")
 
 
 @dataclass
@@ -35,14 +45,18 @@ class Cell:
     value: float | None
     low: float | None = None
     high: float | None = None
+    spread: float | None = None
+    """Std of the per-seed values (several seeds only)."""
     digits: int = 2
 
     def text(self, with_ci: bool = True) -> str:
         if self.value is None:
             return "-"
         main = f"{self.value:.{self.digits}f}"
+        if with_ci and self.spread is not None:
+            main += f" ±{self.spread:.{self.digits}f}"
         if with_ci and self.low is not None and self.high is not None:
-            return f"{main} [{self.low:.{self.digits}f}, {self.high:.{self.digits}f}]"
+            main += f" [{self.low:.{self.digits}f}, {self.high:.{self.digits}f}]"
         return main
 
 
@@ -50,7 +64,11 @@ class Cell:
 class Table:
     title: str
     header: list[str]
+    """Column headers as printed."""
+    keys: list[str] = field(default_factory=list)
+    """Column names in CSV files (unique, lower case)."""
     rows: list[list[str | Cell]] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
 
     def _texts(self, with_ci: bool) -> list[list[str]]:
         return [[c.text(with_ci) if isinstance(c, Cell) else c for c in row] for row in self.rows]
@@ -59,21 +77,35 @@ class Table:
         lines = [f"**{self.title}**", "", "| " + " | ".join(self.header) + " |",
                  "|" + "|".join(" --- " for _ in self.header) + "|"]
         lines += ["| " + " | ".join(row) + " |" for row in self._texts(True)]
+        lines += ["", *self.notes] if self.notes else []
         return "\n".join(lines) + "\n"
 
     def to_csv(self) -> str:
-        """Numbers in separate value/low/high columns, for spreadsheets."""
+        """One row per table row, one column per key; numbers rounded to 4 decimals."""
         out = io.StringIO()
-        writer = csv.writer(out)
-        header: list[str] = []
-        for name, cell in zip(self.header, self.rows[0] if self.rows else []):
-            header += [name, f"{name} low", f"{name} high"] if isinstance(cell, Cell) else [name]
-        writer.writerow(header or self.header)
+        writer = csv.writer(out, lineterminator="\n")
+        writer.writerow(self.keys)
         for row in self.rows:
-            flat: list[Any] = []
-            for cell in row:
-                flat += ([cell.value, cell.low, cell.high] if isinstance(cell, Cell) else [cell])
-            writer.writerow(["" if v is None else v for v in flat])
+            writer.writerow([_num(c.value) if isinstance(c, Cell) else c for c in row])
+        return out.getvalue()
+
+    def to_ci_csv(self) -> str:
+        """The intervals, spreads and n of every number: <key>_low, <key>_high, <key>_std."""
+        out = io.StringIO()
+        writer = csv.writer(out, lineterminator="\n")
+        first = self.rows[0] if self.rows else [""] * len(self.keys)
+        header: list[str] = []
+        for key, cell in zip(self.keys, first):
+            header += [f"{key}_low", f"{key}_high", f"{key}_std"] if isinstance(cell, Cell) and key != "n" else [key]
+        writer.writerow(header)
+        for row in self.rows:
+            flat: list[object] = []
+            for key, cell in zip(self.keys, row):
+                if isinstance(cell, Cell) and key != "n":
+                    flat += [_num(cell.low), _num(cell.high), _num(cell.spread)]
+                else:
+                    flat.append(_num(cell.value) if isinstance(cell, Cell) else cell)
+            writer.writerow(flat)
         return out.getvalue()
 
     def to_latex(self) -> str:
@@ -86,16 +118,8 @@ class Table:
                 + "}\n\\end{table}\n")
 
 
-def _pool(evals: Sequence[EvalResult], getter) -> Cell:
-    """Trial-weighted mean of a rate over seeds, with the interval of the pooled trials."""
-    pairs = [(getter(e), e.trials) for e in evals]
-    pairs = [(r, n) for r, n in pairs if r is not None]
-    if not pairs:
-        return Cell(None)
-    n = sum(k for _r, k in pairs)
-    rate = sum(r * k for r, k in pairs) / n
-    low, high = wilson_interval(rate * n, n)
-    return Cell(rate, low, high)
+def _num(v: float | None) -> str | float:
+    return "" if v is None else round(float(v), 4)
 
 
 def _canonical(name: str) -> str:
@@ -105,13 +129,64 @@ def _canonical(name: str) -> str:
         return name
 
 
-def _subtask_rate(e: EvalResult, skill: str, occurrence: int) -> float | None:
-    seen = [s for s in e.subtasks if _canonical(s.skill) == skill]
-    return seen[occurrence].rate if occurrence < len(seen) else None
+def _column(e: EvalResult, skill: str, occurrence: int) -> int | None:
+    """Index of the `occurrence`-th subtask of `skill` in the plan, None if there is none."""
+    found = [i for i, s in enumerate(e.plan) if _canonical(s) == skill]
+    return found[occurrence] if occurrence < len(found) else None
 
 
-def _lh_rate(e: EvalResult) -> float:
-    return e.lh_success.rate
+TrialValue = Callable[[EvalResult, list[float]], float | None]
+"""A per-trial value of an evaluation (None: the evaluation does not have it)."""
+
+
+def subtask_value(skill: str, occurrence: int = 0) -> TrialValue:
+    return lambda e, scores: None if (k := _column(e, skill, occurrence)) is None else scores[k]
+
+
+def lh_mean_value(e: EvalResult, scores: list[float]) -> float:
+    return sum(scores) / max(len(scores), 1)
+
+
+def lh_chain_value(e: EvalResult, scores: list[float]) -> float:
+    return 1.0 if all(s >= 1.0 for s in scores) else 0.0
+
+
+def _fallback(e: EvalResult, value: TrialValue) -> float | None:
+    """The evaluation's rate of `value` from its summary (files without per-trial scores)."""
+    if value is lh_mean_value:
+        return e.lh_mean.rate
+    if value is lh_chain_value:
+        return e.lh_chain.rate
+    rates = [s.rate for s in e.subtasks]
+    return value(e, rates)
+
+
+def pool(evals: Sequence[EvalResult], value: TrialValue) -> Cell:
+    """A rate pooled over every trial of `evals`, its interval, and the spread across them."""
+    per_eval, trials = [], []
+    for e in evals:
+        if e.trial_scores:
+            vals = [v for t in e.trial_scores if (v := value(e, t)) is not None]
+            if vals:
+                trials += vals
+                per_eval.append(sum(vals) / len(vals))
+        elif (rate := _fallback(e, value)) is not None:
+            per_eval.append(rate)
+            trials += [rate] * e.trials  # no per-trial scores: weight by trials
+    if not per_eval:
+        return Cell(None)
+    spread = statistics.stdev(per_eval) if len(per_eval) > 1 else None
+    if all(e.trial_scores for e in evals):
+        r = success_rate(trials)
+        return Cell(r.value, r.low, r.high, spread)
+    rate = sum(trials) / len(trials)
+    low, high = wilson_interval(rate * len(trials), len(trials))
+    return Cell(rate, low, high, spread)
+
+
+def _n(evals: Sequence[EvalResult]) -> str:
+    seeds = len({e.seed for e in evals})
+    return f"{sum(e.trials for e in evals)} ({seeds} seed{'s' if seeds != 1 else ''})"
 
 
 def _group(evals: Iterable[EvalResult]) -> dict[tuple[str, str, str], list[EvalResult]]:
@@ -122,14 +197,21 @@ def _group(evals: Iterable[EvalResult]) -> dict[tuple[str, str, str], list[EvalR
     return groups
 
 
-def _models(groups: dict[tuple[str, str, str], list], task: str) -> list[str]:
-    found = {m for (_tr, t, m) in groups if t == task}
-    return sorted(found, key=lambda m: (METHOD_ORDER.index(m) if m in METHOD_ORDER else 99, m))
+def _order(model: str) -> tuple[int, str]:
+    return (METHOD_ORDER.index(model) if model in METHOD_ORDER else 99, model)
 
 
 def _lh1_rate(groups, trained_on: str, model: str) -> float | None:
     runs = groups.get((trained_on, "lh1", model))
-    return _pool(runs, _lh_rate).value if runs else None
+    return pool(runs, lh_mean_value).value if runs else None
+
+
+def _sgr(runs: Sequence[EvalResult], variant: str) -> Cell:
+    """SGR of the pooled subtask rates (first occurrence of each skill)."""
+    plan = runs[0].plan
+    rates = [pool(runs, subtask_value(_canonical(s), [_canonical(p) for p in plan[:i]].count(_canonical(s)))).value
+             or 0.0 for i, s in enumerate(plan)]
+    return Cell(sgr(plan, rates, variant), digits=3)
 
 
 def skill_columns(evals: Sequence[EvalResult]) -> list[str]:
@@ -138,66 +220,62 @@ def skill_columns(evals: Sequence[EvalResult]) -> list[str]:
     return [*PAPER_SKILLS, *(s for s in skill_names() if s not in PAPER_SKILLS and s in used)]
 
 
-def skills_table(evals: Sequence[EvalResult], task: str = "lh1") -> Table:
+def skills_table(evals: Sequence[EvalResult], task: str = "lh1", sgr_variant: str = SGR_VARIANTS[0]) -> Table:
     """Paper Table I: success rates of the skills and of the whole task (LH1)."""
     groups = _group(evals)
     columns = skill_columns([e for e in evals if e.task == task])
-    table = Table(f"Success rates for foundational skills and composite task completion "
-                  f"({task.upper()})", ["Method", *(display_name(s) for s in columns), task.upper()])
-    for model in _models(groups, task):
+    table = Table(f"Success rates for foundational skills and composite task completion ({task.upper()})",
+                  ["Method", *(display_name(s) for s in columns), f"{task.upper()} (mean)",
+                   f"{task.upper()} (chain)", "n"],
+                  ["method", *columns, "lh_mean", "lh_chain", "n"])
+    for model in sorted({m for (_tr, t, m) in groups if t == task}, key=_order):
         runs = [e for (tr, t, m), es in groups.items() if t == task and m == model for e in es]
         row: list[str | Cell] = [METHOD_NAMES.get(model, model)]
-        row += [_pool(runs, lambda e, s=s: _subtask_rate(e, s, 0)) for s in columns]
-        row.append(_pool(runs, _lh_rate))
+        row += [pool(runs, subtask_value(s)) for s in columns]
+        row += [pool(runs, lh_mean_value), pool(runs, lh_chain_value), _n(runs)]
         table.rows.append(row)
     return table
 
 
-def generalization_table(evals: Sequence[EvalResult],
-                         experiments: Sequence[str] = ("lh2", "lh3")) -> Table:
+def generalization_table(evals: Sequence[EvalResult], experiments: Sequence[str] = ("lh2", "lh3"),
+                         sgr_variant: str = SGR_VARIANTS[0]) -> Table:
     """Paper Table II: policies trained on one task evaluated on LH2 and LH3."""
     groups = _group(evals)
     table = Table("Generalization of policies to LH tasks",
-                  ["Experiment", "Method", *[display_name(c[0]) for c in LH_COLUMNS], "Time(s)",
-                   "LH.", "SGR.", "EGR."])
+                  ["Experiment", "Method", *[display_name(s) for s, _k in LH_COLUMNS], "Time(s)",
+                   "LH (mean)", "LH (chain)", "SGR", "EGR", "n"],
+                  ["experiment", "method", "follow", "carry", "follow_2", "climb", "sit", "time_s",
+                   "lh_mean", "lh_chain", "sgr", "egr", "n"],
+                  notes=[TIME_NOTE, f"SGR variant: {sgr_variant}; EGR = LH (mean) / the same model's LH1 (mean)."])
     for task in experiments:
-        for (trained_on, t, model), runs in sorted(groups.items()):
+        for (trained_on, t, model), runs in sorted(groups.items(), key=lambda kv: _order(kv[0][2])):
             if t != task:
                 continue
             row: list[str | Cell] = [task.upper(), METHOD_NAMES.get(model, model)]
-            row += [_pool(runs, lambda e, s=s, k=k: _subtask_rate(e, s, k)) for s, k in LH_COLUMNS]
+            row += [pool(runs, subtask_value(s, k)) for s, k in LH_COLUMNS]
             times = [e.mean_execution_time for e in runs if e.mean_execution_time]
-            row.append(Cell(sum(times) / len(times) if times else None))
-            lh = _pool(runs, _lh_rate)
-            row.append(lh)
-            row.append(Cell(sum(e.sgr for e in runs) / len(runs)))
+            row.append(Cell(sum(times) / len(times) if times else None, digits=1))
+            lh = pool(runs, lh_mean_value)
+            row += [lh, pool(runs, lh_chain_value), _sgr(runs, sgr_variant)]
             lh1 = _lh1_rate(groups, trained_on, model)
-            row.append(Cell(egr(lh.value or 0.0, lh1) if lh1 else None))
+            row += [Cell(egr(lh.value or 0.0, lh1) if lh1 else None), _n(runs)]
             table.rows.append(row)
-    table.rows.sort(key=lambda r: (r[0], METHOD_ORDER.index(_key(r[1]))
-                                   if _key(r[1]) in METHOD_ORDER else 99))
     return table
 
 
-def _key(name: str | Cell) -> str:
-    inverse = {v: k for k, v in METHOD_NAMES.items()}
-    return inverse.get(name, name) if isinstance(name, str) else ""
-
-
-def ablation_table(evals: Sequence[EvalResult], task: str = "lh3") -> Table:
+def ablation_table(evals: Sequence[EvalResult], task: str = "lh3", sgr_variant: str = SGR_VARIANTS[0]) -> Table:
     """Paper Table III: EGR, SGR and LH success of Full / A1 / A2 on LH3."""
     groups = _group(evals)
-    table = Table(f"Ablation on {task.upper()}", ["Method", "EGR", "SGR", "LH SR"])
-    for (trained_on, t, model), runs in sorted(
-            groups.items(), key=lambda kv: METHOD_ORDER.index(kv[0][2])
-            if kv[0][2] in METHOD_ORDER else 99):
+    table = Table(f"Ablation on {task.upper()}", ["Method", "EGR", "SGR", "LH (mean)", "LH (chain)", "n"],
+                  ["method", "egr", "sgr", "lh_mean", "lh_chain", "n"],
+                  notes=[f"SGR variant: {sgr_variant}; EGR = LH (mean) on {task.upper()} / LH1 (mean)."])
+    for (trained_on, t, model), runs in sorted(groups.items(), key=lambda kv: _order(kv[0][2])):
         if t != task:
             continue
-        lh = _pool(runs, _lh_rate)
+        lh = pool(runs, lh_mean_value)
         lh1 = _lh1_rate(groups, trained_on, model)
-        table.rows.append([METHOD_NAMES.get(model, model),
-                           Cell(egr(lh.value or 0.0, lh1) if lh1 else None),
-                           Cell(sum(e.sgr for e in runs) / len(runs), digits=3), lh])
+        table.rows.append([METHOD_NAMES.get(model, model), Cell(egr(lh.value or 0.0, lh1) if lh1 else None),
+                           _sgr(runs, sgr_variant), lh, pool(runs, lh_chain_value), _n(runs)])
     return table
 
 
@@ -205,10 +283,13 @@ TABLES = {"skills": skills_table, "generalization": generalization_table,
           "ablation": ablation_table}
 
 
-def render(kind: str, evals: Sequence[EvalResult], task: str | None = None) -> Table:
+def render(kind: str, evals: Sequence[EvalResult], task: str | None = None,
+           sgr_variant: str = SGR_VARIANTS[0]) -> Table:
     """One table by name; `task` replaces the paper's evaluation task (LH1 / LH2+LH3 / LH3)."""
+    if sgr_variant not in SGR_VARIANTS:
+        raise ValueError(f"unknown SGR variant {sgr_variant!r}; expected one of {', '.join(SGR_VARIANTS)}")
     if task is None:
-        return TABLES[kind](evals)
+        return TABLES[kind](evals, sgr_variant=sgr_variant)
     if kind == "generalization":
-        return generalization_table(evals, experiments=(task,))
-    return TABLES[kind](evals, task=task)
+        return generalization_table(evals, experiments=(task,), sgr_variant=sgr_variant)
+    return TABLES[kind](evals, task=task, sgr_variant=sgr_variant)

@@ -38,6 +38,9 @@ class CMLCfg(TrunkModelCfg):
     """The policy is a frozen meta policy (this network, weights from `train.init_from`) plus a
     trainable cooperative policy that mixes its action in per action dimension."""
 
+    def builds_on(self) -> str | None:
+        return "incremental" if self.incremental else None
+
     def invalid(self) -> tuple[str, str] | None:
         if self.incremental and self.shared_trunk:
             return "incremental", "the meta policy is frozen; a critic cannot share its trunk (shared_trunk)"

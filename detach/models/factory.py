@@ -59,7 +59,8 @@ def rsl_rl_model_cfgs(model_cfg: ModelCfg, obs_spec: ObsSpec, default_std: float
     """
     common = {"class_name": class_path(model_class(model_cfg)), "obs_spec": obs_spec, "model": model_cfg}
     std = default_std if model_cfg.init_noise_std is None else model_cfg.init_noise_std
-    actor = {**common, "distribution_cfg": {"class_name": GAUSSIAN, "init_std": std}}
+    actor = {**common, "distribution_cfg": {"class_name": GAUSSIAN, "init_std": std,
+                                            "learn_std": model_cfg.learn_noise_std}}
     critic = dict(common)
     if len(model_cfg.critic_objectives) > 1:
         critic["value_objectives"] = list(model_cfg.critic_objectives)

@@ -62,6 +62,9 @@ class TokenHSICfg(TrunkModelCfg):
     of the policy (tokenizers, action token, transformer, head, input normaliser) is frozen
     at the weights of the previous stage (`train.init_from`). Empty = ordinary training."""
 
+    def builds_on(self) -> str | None:
+        return "adapt_skills" if self.adapt_skills else None
+
     def invalid(self) -> tuple[str, str] | None:
         if self.self_frames < 0:
             return "self_frames", f"expected >= 0 (0 = every frame), found {self.self_frames}"

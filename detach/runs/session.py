@@ -24,7 +24,7 @@ from detach.run_contract import checkpoint_iteration, eval_file
 from detach.runs.folder import RunFolder, atomic_write_json
 from detach.runs.mcap_log import RunLogWriter
 from detach.train.checkpoints import CheckpointError, check_model, load_module_weights, read_checkpoint
-from detach.train.setup import build_runner, default_action_std, prepare_assets, seed_everything
+from detach.train.setup import build_runner, default_action_std, load_initial_weights, prepare_assets, seed_everything
 
 
 def train_and_evaluate(run: RunFolder, resume: bool, eval_tasks: Sequence[Path] = (),
@@ -45,6 +45,8 @@ def train_and_evaluate(run: RunFolder, resume: bool, eval_tasks: Sequence[Path] 
             start = runner.load_checkpoint(checkpoint)
             print(f"resumed from {checkpoint.name}: continuing at iteration {start}", flush=True)
         else:
+            if cfg.train.init_from:
+                print(load_initial_weights(runner, cfg), flush=True)
             log.log_scene(scene_message(env, cfg))
         runner.on_iteration = lambda it, _m: run.set_state("running", iteration=it + 1)
         runner.learn(cfg.train.max_iterations)
@@ -99,7 +101,9 @@ def evaluate_run(run: RunFolder, task_path: Path | None, checkpoint: Path | None
     result.iteration = int(state.get("iter", -1))
     path = run.path / eval_file(None if own else cfg.task_name)
     atomic_write_json(path, result.to_json())
-    lh = result.lh_success
-    print(f"evaluation on {cfg.task_name}: LH success {lh.rate:.2f} [{lh.ci[0]:.2f}, {lh.ci[1]:.2f}] over "
-          f"{result.trials} trials; " + ", ".join(f"{s.skill} {s.rate:.2f}" for s in result.subtasks), flush=True)
+    mean, chain = result.lh_mean, result.lh_chain
+    print(f"evaluation on {cfg.task_name} over {result.trials} trials: "
+          + ", ".join(f"{s.skill} {s.rate:.2f}" for s in result.subtasks)
+          + f"; LH (mean of subtasks) {mean.rate:.2f} [{mean.ci[0]:.2f}, {mean.ci[1]:.2f}], "
+          f"LH (whole chain) {chain.rate:.2f} [{chain.ci[0]:.2f}, {chain.ci[1]:.2f}]", flush=True)
     return path

@@ -1,69 +1,114 @@
-"""Sweeps: the paper's experiments as grids of tasks x models x seeds.
+"""Sweeps: the paper's experiments as graphs of runs that build on runs.
 
-A sweep YAML (configs/sweeps/) names training tasks, models, seeds, overrides shared by all
-cells, the tasks each trained policy is evaluated on and the table it fills; a `quick` preset
-(`--quick`) replaces seeds/overrides/trials for a CPU smoke run. Every cell is an ordinary run
-folder whose status.json carries the cell key; re-running a sweep skips finished cells and
-resumes interrupted or failed ones. Cells run as `detach-run` subprocesses on a local pool.
+A sweep YAML (configs/sweeps/; `extends:` works as for tasks) names models, seeds and a list
+of stages. A stage is a task trained for every model and seed, optionally starting from the
+run of an earlier stage (`init_from: <stage>`: same model and seed; `train.init_from`), with
+overrides; `eval` says on which tasks each stage's runs are evaluated. The two readings of the
+paper's phase B (`phase_b: zero_shot | composition`, docs/PROTOCOL.md) select per-stage
+overrides and model substitutions (`zero_shot:` / `composition:` in a stage). A preset
+(`--preset NAME`, `--quick` = `--preset quick`) replaces seeds and trials and adds overrides.
+
+Every cell (stage x model x seed) is an ordinary run folder whose status.json carries the cell
+key `<stage>/<model>/s<seed>/<digest>`; the digest covers everything that defines the run
+(task, model, seed, overrides, presets, the parent cell), so sweeps that share a stage (the
+phase-A runs of Tables I-III) share its runs. Re-running a sweep skips finished cells, runs
+the evaluations a finished cell still lacks, and resumes interrupted or failed ones from their
+last checkpoint. Cells run in dependency order on a local pool or as Ray tasks; a lock per
+sweep file keeps two processes from running one sweep, and a lock per cell keeps two sweeps
+from running one cell at the same time (the second waits for the first). Locks are `flock`s on
+files under `<runs>/.locks/`: released when a process dies, and local to one machine unless the
+runs folder's file system supports them across machines.
 """
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
+import hashlib
+import json
 import os
 import subprocess
 import sys
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, replace
+import time
+from collections import deque
+from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal
 
+from detach.config import load_merged
 from detach.config_validate import Builder
+from detach.run_contract import eval_file
 from detach.runs.folder import RunFolder, find_runs
-from detach.yaml_source import ConfigError, load_yaml
+from detach.yaml_source import ConfigError
+
+PhaseB = Literal["zero_shot", "composition"]
 
 
 @dataclass(frozen=True)
-class QuickCfg:
-    seeds: tuple[int, ...] | None = None
+class ReadingCfg:
+    """What a stage changes under one reading of phase B."""
+
     overrides: tuple[str, ...] = ()
+    models: dict[str, str] = field(default_factory=dict)
+    """Model substitutions, e.g. {tokenhsi: tokenhsi_adapt}: the stage trains that model instead."""
+
+
+@dataclass(frozen=True)
+class StageCfg:
+    name: str
+    task: str
+    """A task name in configs/tasks/ or a path relative to the sweep file."""
+    init_from: str | None = None
+    """An earlier stage: each run starts from that stage's run of the same model and seed."""
+    overrides: tuple[str, ...] = ()
+    zero_shot: ReadingCfg = ReadingCfg()
+    composition: ReadingCfg = ReadingCfg()
+
+
+@dataclass(frozen=True)
+class PresetCfg:
+    seeds: tuple[int, ...] | None = None
     eval_trials: int | None = None
+    overrides: tuple[str, ...] = ()
+    """Added to every cell."""
+    stage_overrides: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    """Added to the cells of one stage (e.g. its iterations)."""
+    config_presets: tuple[str, ...] = ()
+    """configs/presets/ files merged into every cell (`detach-run --preset`)."""
+    phase_b: PhaseB | None = None
+    """Replaces the sweep's reading of phase B."""
 
 
 @dataclass(frozen=True)
 class SweepCfg:
     name: str
-    tasks: tuple[str, ...]
-    """Training tasks: names in configs/tasks/ or paths relative to the sweep file."""
     models: tuple[str, ...]
+    stages: tuple[StageCfg, ...]
     seeds: tuple[int, ...] = (0,)
+    phase_b: PhaseB = "zero_shot"
     overrides: tuple[str, ...] = ()
-    eval_tasks: tuple[str, ...] = ()
-    """Tasks every trained policy is evaluated on; empty = its training task only."""
+    eval: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    """Stage name -> tasks its runs are evaluated on (its own task writes eval.json)."""
     eval_trials: int = 100
     table: Literal["skills", "generalization", "ablation"] = "skills"
-    quick: QuickCfg = QuickCfg()
+    presets: dict[str, PresetCfg] = field(default_factory=dict)
+    preset: str | None = None
+    """The preset applied (set by `load_sweep`, not in YAML)."""
 
 
 @dataclass(frozen=True)
 class Cell:
+    stage: str
     task: Path
     model: str
     seed: int
+    overrides: tuple[str, ...]
+    presets: tuple[str, ...]
+    parent: str | None
+    """Key of the cell this one starts from."""
+    evals: tuple[Path, ...]
     key: str
-
-
-def load_sweep(path: Path, quick: bool = False) -> SweepCfg:
-    data, prov = load_yaml(path)
-    sweep = Builder(prov, str(path)).build(SweepCfg, data, ())
-    for name in (*sweep.tasks, *sweep.eval_tasks):
-        if not task_file(path, name).exists():
-            raise ConfigError(f"task '{name}' not found ({task_file(path, name)})", str(path))
-    if quick:
-        q = sweep.quick
-        sweep = replace(sweep, seeds=q.seeds or sweep.seeds,
-                        overrides=(*sweep.overrides, *q.overrides),
-                        eval_trials=q.eval_trials or sweep.eval_trials)
-    return sweep
 
 
 def task_file(sweep_path: Path, name: str) -> Path:
@@ -73,13 +118,77 @@ def task_file(sweep_path: Path, name: str) -> Path:
     return (sweep_path.resolve().parent.parent / "tasks" / f"{name}.yaml")
 
 
+def load_sweep(path: Path, quick: bool = False, preset: str | None = None) -> SweepCfg:
+    """The sweep of `path` with `preset` applied (`quick` = preset "quick")."""
+    data, prov = load_merged(Path(path))
+    builder = Builder(prov, str(path))
+    sweep = builder.build(SweepCfg, data, ())
+    names = [s.name for s in sweep.stages]
+    if len(set(names)) != len(names):
+        raise ConfigError(f"stage names must be unique, found {names}", str(path))
+    for i, stage in enumerate(sweep.stages):
+        if stage.init_from is not None and stage.init_from not in names[:i]:
+            raise builder.error(("stages", i, "init_from"), f"expected an earlier stage ({', '.join(names[:i]) or 'none'}), "
+                                                            f"found {stage.init_from!r}")
+        if not task_file(path, stage.task).exists():
+            raise builder.error(("stages", i, "task"), f"task '{stage.task}' not found ({task_file(path, stage.task)})")
+    for stage_name, tasks in sweep.eval.items():
+        if stage_name not in names:
+            raise builder.error(("eval", stage_name), f"unknown stage; stages: {', '.join(names)}")
+        for task in tasks:
+            if not task_file(path, task).exists():
+                raise builder.error(("eval", stage_name), f"task '{task}' not found ({task_file(path, task)})")
+    preset = "quick" if quick and preset is None else preset
+    if preset is not None:
+        if preset not in sweep.presets:
+            raise ConfigError(f"sweep '{sweep.name}' has no preset '{preset}'; presets: "
+                              f"{', '.join(sweep.presets) or 'none'}", str(path))
+        p = sweep.presets[preset]
+        unknown = [s for s in p.stage_overrides if s not in names]
+        if unknown:
+            raise builder.error(("presets", preset, "stage_overrides", unknown[0]), "unknown stage")
+        sweep = replace(sweep, seeds=p.seeds or sweep.seeds, eval_trials=p.eval_trials or sweep.eval_trials,
+                        overrides=(*sweep.overrides, *p.overrides), phase_b=p.phase_b or sweep.phase_b,
+                        preset=preset)
+    return sweep
+
+
+def _digest(parts: dict) -> str:
+    return hashlib.sha1(json.dumps(parts, sort_keys=True).encode()).hexdigest()[:10]
+
+
 def cells(sweep: SweepCfg, sweep_path: Path) -> list[Cell]:
-    return [Cell(task_file(sweep_path, t), m, s, f"{sweep.name}/{Path(t).stem}/{m}/s{s}")
-            for t in sweep.tasks for m in sweep.models for s in sweep.seeds]
+    """Every cell of the sweep, parents before children."""
+    preset = sweep.presets.get(sweep.preset) if sweep.preset else None
+    out: dict[tuple[str, str, int], Cell] = {}
+    for stage in sweep.stages:
+        reading = getattr(stage, sweep.phase_b)
+        task = task_file(sweep_path, stage.task)
+        for model in sweep.models:
+            for seed in sweep.seeds:
+                parent = out[(stage.init_from, model, seed)] if stage.init_from else None
+                overrides = (*sweep.overrides, *stage.overrides, *reading.overrides,
+                             *(preset.stage_overrides.get(stage.name, ()) if preset else ()))
+                presets = preset.config_presets if preset else ()
+                trained = reading.models.get(model, model)
+                digest = _digest({"task": task.name, "model": trained, "seed": seed, "overrides": list(overrides),
+                                  "presets": list(presets), "parent": parent.key if parent else None})
+                evals = tuple(task_file(sweep_path, t) for t in sweep.eval.get(stage.name, ()))
+                out[(stage.name, model, seed)] = Cell(stage.name, task, trained, seed, overrides, presets,
+                                                      parent.key if parent else None, evals,
+                                                      f"{stage.name}/{trained}/s{seed}/{digest}")
+    return list(out.values())
+
+
+def cell_keys(sweep_path: Path, preset: str | None = None) -> set[str]:
+    """Keys of the sweep's cells under `preset` (None = its default settings): what a table of
+    that sweep reads, so runs of another preset or reading never pool into it."""
+    sweep = load_sweep(sweep_path, preset=preset)
+    return {c.key for c in cells(sweep, sweep_path)}
 
 
 def existing_runs(out: Path) -> dict[str, RunFolder]:
-    """Newest run folder per sweep cell key."""
+    """Newest run folder per cell key."""
     found: dict[str, RunFolder] = {}
     for run in find_runs(out):
         try:
@@ -91,26 +200,71 @@ def existing_runs(out: Path) -> dict[str, RunFolder]:
     return found
 
 
-def cell_command(cell: Cell, sweep: SweepCfg, sweep_path: Path, out: Path,
-                 device: str, previous: RunFolder | None) -> list[str] | None:
-    """The detach-run call for a cell, or None when it is already finished."""
-    evals = [str(task_file(sweep_path, t)) for t in sweep.eval_tasks]
-    common = ["--trials", str(sweep.eval_trials), "--device", device]
-    common += [arg for t in evals for arg in ("--eval-on", t)]
+# ------------------------------------------------------------------------------- commands
+def _missing_evals(cell: Cell, run: RunFolder) -> list[Path]:
+    """Evaluation tasks of the cell whose eval file the run does not have yet."""
+    return [t for t in cell.evals if not (run.path / eval_file(None if t.stem == cell.task.stem else t.stem)).exists()]
+
+
+def cell_commands(cell: Cell, previous: RunFolder | None, parent: RunFolder | None, out: Path,
+                  trials: int, device: str) -> list[list[str]]:
+    """The `detach-run` calls that bring the cell to done: none when it is finished and fully
+    evaluated; evaluations only when it is finished; else a resume or a new run."""
+    python = [sys.executable, "-m", "detach.cli"]
+    own = any(t.stem == cell.task.stem for t in cell.evals)
+    others = [arg for t in cell.evals if t.stem != cell.task.stem for arg in ("--eval-on", str(t))]
+    common = ["--trials", str(trials), "--device", device]
     if previous is not None:
         state = previous.status().state
         if state == "finished":
-            return None
-        if state in ("interrupted", "failed", "running") and previous.latest_checkpoint():
-            return [sys.executable, "-m", "detach.cli", "--resume", str(previous.path), *common]
-    return [sys.executable, "-m", "detach.cli", str(cell.task), "--model", cell.model,
-            "--seed", str(cell.seed), "--out", str(out), "--cell", cell.key, *common,
-            *sweep.overrides]
+            return [[*python, "--eval", str(previous.path), "--task", str(t), *common]
+                    for t in _missing_evals(cell, previous)]
+        if previous.latest_checkpoint() is not None:
+            return [[*python, "--resume", str(previous.path), *common, *others, *([] if own else ["--no-eval"])]]
+    init = [f"train.init_from={parent.path.resolve()}"] if parent is not None else []
+    presets = [arg for p in cell.presets for arg in ("--preset", p)]
+    return [[*python, str(cell.task), "--model", cell.model, "--seed", str(cell.seed), "--out", str(out),
+             "--cell", cell.key, *presets, *common, *others, *([] if own else ["--no-eval"]),
+             *cell.overrides, *init]]
 
 
-def _run_command(cmd: list[str], cwd: str, env: dict[str, str] | None = None) -> int:
-    return subprocess.run(cmd, cwd=cwd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                          text=True).returncode
+# ------------------------------------------------------------------------------- locks
+@contextlib.contextmanager
+def file_lock(path: Path, wait_s: float | None = 0.0):
+    """An exclusive `flock` on `path`; yields True when held, False when another process holds
+    it (after waiting `wait_s` seconds; None waits for ever)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a+") as handle:
+        deadline = None if wait_s is None else time.monotonic() + wait_s
+        while True:
+            try:
+                fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if deadline is not None and time.monotonic() >= deadline:
+                    yield False
+                    return
+                time.sleep(1.0)
+        handle.seek(0)
+        handle.truncate()
+        handle.write(f"{os.getpid()}\n")
+        handle.flush()
+        try:
+            yield True
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def _lock_path(out: Path, name: str) -> Path:
+    return out / ".locks" / f"{hashlib.sha1(name.encode()).hexdigest()[:16]}.lock"
+
+
+# ------------------------------------------------------------------------------- running
+def _run_command(cmd: list[str], cwd: str, env: dict[str, str] | None = None) -> tuple[int, str]:
+    """(exit code, the last lines of stderr)."""
+    proc = subprocess.run(cmd, cwd=cwd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    tail = "\n".join(proc.stderr.strip().splitlines()[-5:])
+    return proc.returncode, tail
 
 
 def _cell_env(jobs: int) -> dict[str, str]:
@@ -121,56 +275,167 @@ def _cell_env(jobs: int) -> dict[str, str]:
     return env
 
 
-def _launch_local(pending: list[tuple[Cell, list[str]]], jobs: int) -> list[int]:
-    def launch(item: tuple[Cell, list[str]]) -> int:
-        cell, cmd = item
-        print(f"[{cell.key}] start", flush=True)
-        code = _run_command(cmd, os.getcwd(), _cell_env(jobs))
-        print(f"[{cell.key}] {'done' if code == 0 else f'FAILED (exit {code})'}", flush=True)
-        return code
+class _LocalPool:
+    def __init__(self, jobs: int) -> None:
+        self.pool = ThreadPoolExecutor(max_workers=max(jobs, 1))
+        self.jobs = jobs
 
-    with ThreadPoolExecutor(max_workers=max(jobs, 1)) as pool:
-        return list(pool.map(launch, pending))
+    def submit(self, work: "_Work") -> Future:
+        return self.pool.submit(work)
+
+    def close(self) -> None:
+        self.pool.shutdown(wait=True)
 
 
-def _launch_ray(pending: list[tuple[Cell, list[str]]], jobs: int) -> list[int]:
-    """Each cell as a Ray task (one CPU each) running the same `detach-run` command.
+class _RayPool:
+    """Each cell's commands as one Ray task (one CPU). Joins the cluster of `RAY_ADDRESS` if
+    set, else starts a local Ray with `jobs` CPUs. On a cluster, the runs folder must be a file
+    system every node sees and the project installed on every node."""
 
-    Joins the cluster of `RAY_ADDRESS` if set, else starts a local Ray with `jobs` CPUs.
-    On a real cluster, `--out` must be a filesystem every node sees and the project must be
-    installed on every node (the command uses the driver's Python path).
-    """
+    def __init__(self, jobs: int) -> None:
+        try:
+            import ray
+        except ImportError:
+            raise ConfigError("--launcher ray needs Ray: pip install 'detach[ray]'") from None
+        self.ray = ray
+        if not ray.is_initialized():
+            address = os.environ.get("RAY_ADDRESS")
+            ray.init(address=address, num_cpus=None if address else max(jobs, 1),
+                     include_dashboard=False, log_to_driver=False)
+        self.remote = ray.remote(num_cpus=1)(_run_commands)
+        self.jobs = jobs
+
+    def submit(self, work: "_Work") -> Future:
+        """The cell's commands, decided here, run remotely (no cell lock: Ray runs each cell of
+        this sweep once, and another process's sweep is kept out by the sweep lock only)."""
+        future: Future = Future()
+        future.ref = self.remote.remote(work.commands(), work.cwd)  # type: ignore[attr-defined]
+        return future
+
+    def resolve(self, futures: set[Future]) -> None:
+        """Complete the futures whose Ray tasks finished (as they finish: `ray.wait`)."""
+        pending = {f.ref: f for f in futures if not f.done()}  # type: ignore[attr-defined]
+        if not pending:
+            return
+        ready, _ = self.ray.wait(list(pending), num_returns=1, timeout=1.0)
+        for ref in ready:
+            pending[ref].set_result(self.ray.get(ref))
+
+    def close(self) -> None:
+        """Ray stays up for other sweeps of this process."""
+
+
+def _run_commands(cmds: list[list[str]], cwd: str, env: dict[str, str] | None = None) -> tuple[int, str]:
+    for cmd in cmds:
+        code, tail = _run_command(cmd, cwd, env)
+        if code != 0:
+            return code, tail
+    return 0, ""
+
+
+@dataclass
+class _Work:
+    """A callable running one cell under its lock (attributes for the Ray launcher)."""
+
+    cell: Cell
+    out: Path
+    trials: int
+    device: str
+    env: dict[str, str]
+    cwd: str = field(default_factory=os.getcwd)
+
+    def commands(self) -> list[list[str]]:
+        runs = existing_runs(self.out)  # re-read: another sweep may have run the cell meanwhile
+        parent = runs.get(self.cell.parent) if self.cell.parent else None
+        return cell_commands(self.cell, runs.get(self.cell.key), parent, self.out, self.trials, self.device)
+
+    def __call__(self) -> tuple[int, str]:
+        """Run the cell under its lock: a second sweep that reaches it waits, then finds it done."""
+        with file_lock(_lock_path(self.out, self.cell.key), wait_s=None):
+            return _run_commands(self.commands(), self.cwd, self.env)
+
+
+def _eta(done: int, total: int, started: float) -> str:
+    if done == 0:
+        return "?"
+    left = (time.monotonic() - started) / done * (total - done)
+    return f"{left / 60:.0f} min" if left >= 60 else f"{left:.0f} s"
+
+
+def run_sweep(sweep_path: Path, out: Path, jobs: int = 1, quick: bool = False, device: str = "cpu",
+              launcher: str = "local", preset: str | None = None) -> int:
+    """Run every cell that is not finished and evaluated; returns the number that failed."""
+    sweep = load_sweep(sweep_path, quick, preset)
+    label = f"{sweep.name}" + (f" [{sweep.preset}]" if sweep.preset else "")
+    with file_lock(_lock_path(out, f"sweep:{Path(sweep_path).resolve()}:{sweep.preset}")) as held:
+        if not held:
+            raise ConfigError(f"sweep {label} is already running in another process (lock in {out}/.locks)",
+                              str(sweep_path))
+        return _run_graph(sweep, sweep_path, out, jobs, device, launcher, label)
+
+
+def _run_graph(sweep: SweepCfg, sweep_path: Path, out: Path, jobs: int, device: str, launcher: str,
+               label: str) -> int:
+    todo = cells(sweep, sweep_path)
+    runs = existing_runs(out)
+    done_keys = {c.key for c in todo if _complete(c, runs.get(c.key))}
+    pending = deque(c for c in todo if c.key not in done_keys)
+    total = len(pending)
+    print(f"sweep {label}: {len(todo)} cells, {len(done_keys)} done, {total} to run with {jobs} job(s) "
+          f"({launcher}), phase B: {sweep.phase_b}", flush=True)
+    if not pending:
+        return 0
+    pool = _RayPool(jobs) if launcher == "ray" else _LocalPool(jobs)
+    env = _cell_env(jobs)
+    running: dict[Future, Cell] = {}
+    failed: set[str] = set()
+    finished, started = 0, time.monotonic()
     try:
-        import ray
-    except ImportError:
-        raise ConfigError("--launcher ray needs Ray: pip install 'detach[ray]'") from None
-    if not ray.is_initialized():
-        address = os.environ.get("RAY_ADDRESS")
-        ray.init(address=address, num_cpus=None if address else max(jobs, 1),
-                 include_dashboard=False, log_to_driver=False)
-    remote = ray.remote(num_cpus=1)(_run_command)
-    refs = [remote.remote(cmd, os.getcwd()) for _cell, cmd in pending]
-    for cell, _cmd in pending:
-        print(f"[{cell.key}] submitted", flush=True)
-    codes = ray.get(refs)
-    for (cell, _cmd), code in zip(pending, codes):
-        print(f"[{cell.key}] {'done' if code == 0 else f'FAILED (exit {code})'}", flush=True)
-    return codes
+        while pending or running:
+            for cell in list(pending):
+                if len(running) >= max(jobs, 1):
+                    break
+                if cell.parent in failed:
+                    pending.remove(cell)
+                    failed.add(cell.key)
+                    finished += 1
+                    print(f"[{finished}/{total}] {cell.key}: SKIPPED (its parent cell failed)", flush=True)
+                elif cell.parent is None or cell.parent in done_keys:
+                    pending.remove(cell)
+                    running[pool.submit(_Work(cell, out, sweep.eval_trials, device, env))] = cell
+                    print(f"[{finished}/{total}] {cell.key}: start", flush=True)
+            if not running:
+                break
+            if isinstance(pool, _RayPool):
+                pool.resolve(set(running))
+                ready = {f for f in running if f.done()}
+            else:
+                ready, _ = wait(set(running), timeout=5.0, return_when=FIRST_COMPLETED)
+            for future in ready:
+                cell = running.pop(future)
+                code, tail = future.result()
+                finished += 1
+                if code == 0:
+                    done_keys.add(cell.key)
+                    print(f"[{finished}/{total}] {cell.key}: done (ETA {_eta(finished, total, started)})", flush=True)
+                else:
+                    failed.add(cell.key)
+                    reason = f": {tail}" if tail else ""
+                    print(f"[{finished}/{total}] {cell.key}: FAILED (exit {code}){reason}", flush=True)
+    finally:
+        pool.close()
+    return len(failed)
 
 
-LAUNCHERS = {"local": _launch_local, "ray": _launch_ray}
+def _complete(cell: Cell, run: RunFolder | None) -> bool:
+    """Finished and evaluated on every task the sweep asks for."""
+    if run is None:
+        return False
+    try:
+        state = run.status().state
+    except (OSError, ValueError):
+        return False
+    return state == "finished" and not _missing_evals(cell, run)
 
 
-def run_sweep(sweep_path: Path, out: Path, jobs: int = 1, quick: bool = False,
-              device: str = "cpu", launcher: str = "local") -> int:
-    """Run every unfinished cell; returns the number of cells that failed."""
-    sweep = load_sweep(sweep_path, quick)
-    done = existing_runs(out)
-    todo = [(c, cell_command(c, sweep, sweep_path, out, device, done.get(c.key)))
-            for c in cells(sweep, sweep_path)]
-    pending = [(c, cmd) for c, cmd in todo if cmd is not None]
-    print(f"sweep {sweep.name}: {len(todo)} cells, {len(todo) - len(pending)} finished, "
-          f"{len(pending)} to run with {jobs} job(s) ({launcher})")
-
-    codes = LAUNCHERS[launcher](pending, jobs) if pending else []
-    return sum(1 for code in codes if code != 0)
+__all__ = ["Cell", "SweepCfg", "cell_keys", "cell_commands", "cells", "load_sweep", "run_sweep"]

@@ -1,60 +1,102 @@
-"""`detach-run table`: the paper's tables from the eval*.json files of runs or a sweep."""
+"""`detach-run table`: the paper's tables from the eval*.json files of runs or a sweep.
+
+Two guards keep a table honest:
+- one evaluation per sweep cell and evaluated task, the newest: a cell trained twice (two
+  sweeps over one file, a re-run) must not count its trials twice, which would double n and
+  shrink the intervals;
+- a file that does not follow the contract, or holds impossible numbers (NaN, a rate
+  outside [0, 1], zero trials), is left out with a line on stderr saying which and why.
+"""
 
 from __future__ import annotations
 
-import json
+import sys
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 from detach.config import ConfigError
 from detach.eval.tables import TABLES, render
 from detach.run_contract import EVAL_GLOB, EvalResult
-from detach.runs.folder import RunFolder, atomic_write_text, find_runs
+from detach.runs.folder import RunFolder, atomic_write_text, find_runs, read_eval
+
+Report = Callable[[str], None]
 
 
-def collect_evals(runs: list[RunFolder], cells: set[str] | None = None) -> list[EvalResult]:
-    """Every eval*.json of the given runs (restricted to sweep cells when given)."""
-    evals = []
+def _stderr(line: str) -> None:
+    print(f"detach-run table: {line}", file=sys.stderr)
+
+
+@dataclass
+class _Found:
+    result: EvalResult
+    path: Path
+    written: float
+
+
+def collect_evals(runs: list[RunFolder], cells: set[str] | None = None,
+                  report: Report = _stderr) -> list[EvalResult]:
+    """Every usable eval*.json of the given runs (restricted to sweep cells when given); of a
+    sweep cell evaluated more than once on a task, only the newest evaluation."""
+    found: dict[tuple[str, ...], _Found] = {}
+    duplicates = 0
     for run in runs:
-        if cells is not None:
-            try:
-                if run.status().cell not in cells:
-                    continue
-            except (OSError, ValueError):
-                continue
+        try:
+            cell = run.status().cell
+        except (OSError, ValueError):
+            cell = None
+        if cells is not None and cell not in cells:
+            continue
         for path in sorted(run.path.glob(EVAL_GLOB)):
             try:
-                evals.append(EvalResult.from_json(json.loads(path.read_text(encoding="utf-8")), str(path)))
-            except (OSError, ValueError):
+                result = read_eval(path)
+                written = path.stat().st_mtime
+            except (OSError, ValueError) as exc:
+                report(f"skipped {path}: {exc}")
                 continue
-    return evals
+            key = ("cell", cell, result.task) if cell else ("file", str(path))
+            previous = found.get(key)
+            if previous is not None:
+                duplicates += 1
+                if (previous.written, str(previous.path)) > (written, str(path)):
+                    continue
+            found[key] = _Found(result, path, written)
+    if duplicates:
+        report(f"{duplicates} older evaluation(s) of a sweep cell left out (a cell counts once: its newest "
+               f"evaluation per task)")
+    return [f.result for f in found.values()]
 
 
 def print_table(source: Path, runs_dir: Path, kind: str | None, out: Path | None,
-                task: str | None = None) -> int:
+                task: str | None = None, sgr_variant: str = "reported", preset: str | None = None) -> int:
+    """Print the table(s) of a runs folder or of a sweep's cells (under `preset`, None = the
+    sweep's default settings) and write .md, .csv, _ci.csv and .tex beside each."""
     if not source.exists():
         raise ConfigError("sweep file or runs folder not found", str(source))
     if source.is_dir():
         evals, kinds, name = collect_evals(find_runs(source)), [kind] if kind else list(TABLES), source.name
         out = out or source / "tables"
     else:
-        from detach.runs.sweep import cells, load_sweep
+        from detach.runs.sweep import cell_keys, load_sweep
 
-        sweep = load_sweep(source)
-        keys = {c.key for c in cells(sweep, source)}
-        quick = load_sweep(source, quick=True)
-        keys |= {c.key for c in cells(quick, source)}
-        evals = collect_evals(find_runs(runs_dir), keys)
+        sweep = load_sweep(source, preset=preset)
+        evals = collect_evals(find_runs(runs_dir), cell_keys(source, preset))
         kinds, name = [kind or sweep.table], sweep.name
         out = out or runs_dir / "tables"
     if not evals:
         raise ConfigError("no eval.json found (train and evaluate runs first)", str(source))
     for k in kinds:
-        table = render(k, evals, task)
+        table = render(k, evals, task, sgr_variant)
         markdown = table.to_markdown()
         print(markdown)
         stem = out / f"{name}_{k}"
-        atomic_write_text(stem.with_suffix(".md"), markdown)
-        atomic_write_text(stem.with_suffix(".csv"), table.to_csv())
-        atomic_write_text(stem.with_suffix(".tex"), table.to_latex())
-        print(f"written: {stem}.md, .csv, .tex\n")
+        files = {stem.with_suffix(".md"): markdown, stem.with_suffix(".csv"): table.to_csv(),
+                 stem.with_name(f"{stem.name}_ci.csv"): table.to_ci_csv(), stem.with_suffix(".tex"): table.to_latex()}
+        try:
+            for path, text in files.items():
+                atomic_write_text(path, text)
+        except OSError as exc:
+            raise ConfigError(f"cannot write the table files ({exc.strerror or exc}); expected a writable "
+                              f"--out folder", str(out)) from None
+        print(f"written: {stem}.md, .csv, _ci.csv, .tex\n")
     return 0

@@ -60,6 +60,9 @@ class Subtask:
     """Object of the subtask (the box for carry, the object for climb/sit), else -1."""
     fixed_target: tuple[float, float, float] | None = None
     """World target when it does not move: tarpos_K, or the last waypoint (z = 0) of traj_K."""
+    choices: tuple[int, ...] = ()
+    """Objects one of which each episode draws at random (a list in `target_object`); empty
+    when the object is fixed (`obj`)."""
 
 
 @dataclass(frozen=True)

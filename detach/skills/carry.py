@@ -3,21 +3,21 @@
 Plan entry: `target_object` names the box (a dynamic object), `tarpos_K` its destination.
 Distance: 3-D from the box's bbox centre to the destination. Success (the paper): 1 when
 delivered (the transition fired), 0.5 when the box was only grasped (lifted at least
-`GRASP_LIFT` above its resting height), else 0. Rewards: walk to the box, hold it up, bring
-it to the destination.
+`GRASP_LIFT` above its resting height), else 0. Rewards: walk to the box, hands on the box,
+hold it up, bring it to the destination.
 """
 
 from __future__ import annotations
 
 import torch
 
-from detach.character.body import START_HEIGHT
+from detach.character.body import BODY_NAMES, HANDS, START_HEIGHT
 from detach.skills.base import PlanError, RewardTerm, Skill, Subtask
 from detach.skills.context import OracleCommand, SkillContext
 from detach.skills.kernels import NEAR, approach
 from detach.skills.registry import register_skill
 from detach.skills.scripting import hinge_index
-from detach.torch_math import quat_rotate, wrap_angle
+from detach.torch_math import point_box_distance, quat_rotate, wrap_angle
 
 GRASP_LIFT = 0.1
 """A box counts as grasped once lifted this far (m) above its resting height."""
@@ -29,6 +29,19 @@ def walk_to_box(ctx: SkillContext) -> torch.Tensor:
     r = approach(ctx, ctx.obj_pos)
     delivered = (ctx.obj_pos[:, :2] - ctx.target[:, :2]).norm(dim=-1) < NEAR
     return torch.where(delivered, torch.ones_like(r), r)
+
+
+HAND_IDS = [BODY_NAMES.index(h) for h in HANDS]
+
+
+def hands_on_box(ctx: SkillContext) -> torch.Tensor:
+    """exp(-20 d^2) of the hands' mean distance d to the box's surface; 1 while the box is
+    lifted. Ours (TokenHSI's humanoid needs no such term: its hands close on the box by
+    contact); it makes the grasp, which needs both hands on the box, findable by exploration."""
+    hands = ctx.state.body_pos[:, HAND_IDS]
+    d = point_box_distance(hands, ctx.obj_pos[:, None], ctx.obj_quat[:, None], ctx.obj_half[:, None]).mean(-1)
+    lifted = ctx.obj_pos[:, 2] >= ctx.obj_rest_z + GRASP_LIFT
+    return torch.where(lifted, torch.ones_like(d), torch.exp(-20.0 * d * d))
 
 
 def box_height(ctx: SkillContext) -> torch.Tensor:
@@ -73,8 +86,8 @@ class Carry(Skill):
     sources = ("tarpos",)
     needs_object = True
     stats = {"grasped": torch.bool}
-    reward_terms = {"walk_to_box": RewardTerm(walk_to_box, 0.2), "box_height": RewardTerm(box_height, 0.2),
-                    "box_to_target": RewardTerm(box_to_target, 0.6)}
+    reward_terms = {"walk_to_box": RewardTerm(walk_to_box, 0.2), "hands_on_box": RewardTerm(hands_on_box, 0.1),
+                    "box_height": RewardTerm(box_height, 0.2), "box_to_target": RewardTerm(box_to_target, 0.5)}
 
     def compile_entry(self, index, source, ref, obj, task) -> Subtask:
         if source == "scene":

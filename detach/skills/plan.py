@@ -9,6 +9,7 @@ exists; each skill checks the entries it is given (`Skill.compile_entry`).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,7 +38,12 @@ def compile_plan(task: TaskCfg) -> tuple[Subtask, ...]:
         except ValueError as exc:
             raise PlanError(("plan", i), str(exc)) from None
         kind, ref = parse_source(src)
-        out.append(skill.compile_entry(i, kind, ref, obj, task))
+        choices = obj if isinstance(obj, tuple) else (obj,)
+        if not choices:
+            raise PlanError(("target_object", i), "expected an object index or a non-empty list of them")
+        entries = [skill.compile_entry(i, kind, ref, c, task) for c in choices]
+        objects = tuple(dict.fromkeys(e.obj for e in entries))
+        out.append(dataclasses.replace(entries[0], choices=objects) if len(objects) > 1 else entries[0])
     return tuple(out)
 
 

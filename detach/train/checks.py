@@ -15,8 +15,10 @@ from detach.config_schema import RunConfig
 from detach.envs.rewards import RewardManager
 from detach.models.factory import model_class
 from detach.sim import check_backend
-from detach.skills import PlanError
+from detach.config import ConfigError
+from detach.skills import PlanError, canonical_name
 from detach.skills.plan import compile_plan
+from detach.train.setup import find_init_checkpoint
 
 
 def complete_run_config(cfg: RunConfig) -> RunConfig:
@@ -43,6 +45,27 @@ def complete_run_config(cfg: RunConfig) -> RunConfig:
         model_class(cfg.model)
     except ValueError as exc:
         raise origin.error(("model", "kind"), str(exc)) from None
+    for i, skill in enumerate(cfg.rewards.paid_skills or ()):
+        try:
+            canonical_name(skill)
+        except ValueError as exc:
+            raise origin.error(("rewards", "paid_skills", i), str(exc)) from None
+    for skill, weight in cfg.train.amp.skill_weights.items():
+        try:
+            canonical_name(skill)
+        except ValueError as exc:
+            raise origin.error(("train", "amp", "skill_weights", skill), str(exc)) from None
+        if not weight >= 0:
+            raise origin.error(("train", "amp", "skill_weights", skill), f"expected a weight >= 0, found {weight}")
+    base_key = cfg.model.builds_on()
+    if base_key and not cfg.train.init_from:
+        raise origin.error(("model", base_key), f"model {cfg.model_name} trains on top of an earlier stage's "
+                           "policy: set train.init_from to that run folder or checkpoint")
+    if cfg.train.init_from:
+        try:
+            find_init_checkpoint(cfg.train.init_from)
+        except ConfigError as exc:
+            raise origin.error(("train", "init_from"), str(exc).removeprefix("train.init_from: ")) from None
     if cfg.model.init_noise_std is None:
         cfg = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, init_noise_std=character.action_std))
     return cfg

@@ -3,12 +3,13 @@
 Reference windows are featurised with the env's own `amp_frame` (the single definition of
 an AMP frame), so the discriminator compares like with like. With task-specific
 discrimination a window's skill one-hot says which skill's clips (`Skill.motion_labels`) it
-was drawn from; the skill of each sample is drawn uniformly over the skills that have clips.
+was drawn from. As in TokenHSI, the skills drawn are those of the run's plan that have clips,
+with the weights of `train.amp.skill_weights` (its skillDiscProb, pooled per skill).
 """
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Callable, Mapping, Sequence
 
 import torch
 import torch.nn.functional as F
@@ -29,17 +30,38 @@ def amp_features(state: MotionState) -> torch.Tensor:
     return frames.reshape(n, -1)
 
 
+def skill_draw_weights(plan: Sequence[str], with_clips: Sequence[str],
+                       weights: Mapping[str, float]) -> dict[str, float]:
+    """{skill: probability} of drawing a reference window of each skill: the plan's skills that
+    have clips, weighted by `weights` (a skill it does not list gets the mean of those it does;
+    none listed = uniform), normalised. Falls back to every skill with clips when none of the
+    plan's has any (a plug-in skill without clips)."""
+    chosen = [s for s in dict.fromkeys(plan) if s in with_clips] or list(with_clips)
+    if not chosen:
+        raise ValueError("the motion library has no clip for any skill; AMP needs reference motion")
+    default = sum(weights.values()) / len(weights) if weights else 1.0
+    raw = {s: float(weights.get(s, default)) for s in chosen}
+    total = sum(raw.values())
+    if total <= 0:
+        raise ValueError(f"train.amp.skill_weights gives every skill of the plan ({', '.join(chosen)}) weight 0")
+    return {s: w / total for s, w in raw.items()}
+
+
 def amp_reference_sampler(lib: MotionLib, steps: int, dt: float, conditional: bool = True,
-                          device: str | torch.device = "cpu"
+                          device: str | torch.device = "cpu", plan: Sequence[str] = (),
+                          weights: Mapping[str, float] | None = None,
                           ) -> Callable[[int], tuple[torch.Tensor, torch.Tensor]]:
     """fn(n) -> (AMP windows [n, steps * d], skill one-hot [n, number of skills])."""
     names = skill_names()
     labels = [skill_class(name).motion_labels for name in names]
-    tasks = [i for i, group in enumerate(labels) if any(label in lib.skills_present for label in group)]
+    with_clips = [name for name, group in zip(names, labels) if any(label in lib.skills_present for label in group)]
+    draw = skill_draw_weights(plan, with_clips, weights or {})
+    tasks = torch.tensor([names.index(s) for s in draw])
+    probs = torch.tensor(list(draw.values()))
 
     def sample(n: int) -> tuple[torch.Tensor, torch.Tensor]:
         if conditional:
-            picks = torch.tensor(tasks)[torch.randint(len(tasks), (n,))]
+            picks = tasks[torch.multinomial(probs, n, replacement=True)]
             parts, onehots = [], []
             for task in picks.unique().tolist():
                 k = int((picks == task).sum())

@@ -14,11 +14,14 @@ import numpy as np
 import torch
 
 from detach.character import character_class
+from detach.config import ConfigError, load_run_config
 from detach.config_schema import RunConfig, TaskCfg
 from detach.envs.lh_env import LHEnv, make_env
 from detach.models.factory import DEFAULT_OBS_GROUPS, rsl_rl_model_cfgs
 from detach.models.losses import combine_aux_losses
 from detach.motion import default_motion_lib
+from detach.run_contract import CHECKPOINT_DIR, CONFIG_FILE, checkpoint_iteration
+from detach.skills import canonical_name
 from detach.train.motion_bridge import amp_part_indices, amp_reference_sampler, reset_reference_sampler
 from detach.train.runner import DetachRunner, MetricsSink
 from detach.train.schedule import stage_lengths
@@ -26,8 +29,10 @@ from scene_builder.assets import ensure_assets
 
 
 def prepare_assets(task: TaskCfg) -> None:
-    """Build the task's missing assets now (a progress line if there is anything to build)."""
-    ensure_assets(task, log=lambda line: print(line, flush=True))
+    """Build the task's missing assets now (a progress line if there is anything to build), in
+    this process: a process pool needs a main module it can re-import, which not every caller
+    has, and a task needs a handful of assets (`detach-scene build --jobs N` builds many)."""
+    ensure_assets(task, jobs=1, log=lambda line: print(line, flush=True))
 
 
 def seed_everything(seed: int) -> None:
@@ -55,6 +60,7 @@ def train_cfg_dict(cfg: RunConfig, env: LHEnv) -> dict:
                       "gamma": t.gamma, "lam": t.lam, "value_loss_coef": t.value_loss_coef,
                       "entropy_coef": t.entropy_coef, "learning_rate": t.learning_rate,
                       "max_grad_norm": t.max_grad_norm, "schedule": t.schedule,
+                      "use_clipped_value_loss": t.clipped_value_loss,
                       "desired_kl": t.desired_kl, "amp": amp,
                       "task_specific": cfg.env.task_specific_discrimination, "amp_parts": parts,
                       "per_objective_advantage_norm": t.per_objective_advantage_norm},
@@ -98,7 +104,8 @@ def build_runner(cfg: RunConfig, checkpoint_dir: Path | None, device: str, log: 
     alg = runner.alg
     if alg.amp_enabled:
         alg.reference_sampler = amp_reference_sampler(
-            lib, cfg.env.amp_obs_steps, env.dt, cfg.env.task_specific_discrimination, device)
+            lib, cfg.env.amp_obs_steps, env.dt, cfg.env.task_specific_discrimination, device,
+            plan=[canonical_name(s) for s in cfg.task.plan], weights=cfg.train.amp.skill_weights)
     on_stage, detach_models = _stage_hook(runner)
     runner.on_stage = on_stage
     if detach_models:
@@ -120,3 +127,65 @@ def build_runner(cfg: RunConfig, checkpoint_dir: Path | None, device: str, log: 
 
         alg.aux_loss_fn = aux_loss
     return env, runner
+
+
+def find_init_checkpoint(source: str) -> tuple[Path, Path | None]:
+    """(checkpoint file, its run folder or None) of `train.init_from`: a run folder (its
+    latest checkpoint) or a checkpoint file."""
+    path = Path(source)
+    if path.is_dir():
+        found = sorted((it, p) for p in (path / CHECKPOINT_DIR).glob("*.pt")
+                       if (it := checkpoint_iteration(p.name)) is not None)
+        if not found:
+            raise ConfigError(f"train.init_from: the run folder {path} has no checkpoint")
+        return found[-1][1], path
+    if path.is_file():
+        run = path.parent.parent
+        return path, run if (run / CONFIG_FILE).is_file() else None
+    raise ConfigError(f"train.init_from: {source} is neither a run folder nor a checkpoint file")
+
+
+def _fit(target: dict[str, torch.Tensor], source: dict[str, torch.Tensor], new: tuple[str, ...]) -> list[str]:
+    """Why `source` does not fit `target` (empty if it does); keys starting with a prefix of
+    `new` may be missing from the source (modules the target adds, e.g. adapters)."""
+    missing = [k for k in target if k not in source and not k.startswith(new)]
+    unexpected = [k for k in source if k not in target]
+    shapes = [f"{k} {tuple(source[k].shape)} vs {tuple(target[k].shape)}" for k in target
+              if k in source and source[k].shape != target[k].shape]
+    problems = []
+    for what, keys in (("missing", missing), ("unexpected", unexpected), ("of another shape", shapes)):
+        if keys:
+            problems.append(f"{len(keys)} {what} (e.g. {keys[0]})")
+    return problems
+
+
+def load_initial_weights(runner: DetachRunner, cfg: RunConfig) -> str:
+    """Load `train.init_from` into the runner's actor, critic (normalisers included) and
+    discriminators; ConfigError naming both models when the architectures differ. Returns a
+    line for the log."""
+    checkpoint, run = find_init_checkpoint(str(cfg.train.init_from))
+    source_model = "?"
+    if run is not None:
+        try:
+            source_cfg = load_run_config(run / CONFIG_FILE)
+            source_model = f"{source_cfg.model_name} ({source_cfg.model.kind})"
+        except ConfigError:
+            source_model = f"? (unreadable {CONFIG_FILE})"
+    try:
+        state = torch.load(checkpoint, map_location=runner.device, weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - a broken file is a user error here
+        raise ConfigError(f"train.init_from: cannot read {checkpoint} ({type(exc).__name__})") from None
+    alg = runner.alg
+    parts = [("actor", alg.actor, state.get("actor_state_dict")), ("critic", alg.critic, state.get("critic_state_dict"))]
+    if alg.amp_enabled and "discriminator_state_dict" in state:
+        parts.append(("discriminator", alg.discriminators, state["discriminator_state_dict"]))
+    for name, module, source in parts:
+        if not isinstance(source, dict):
+            raise ConfigError(f"train.init_from: {checkpoint} has no {name} weights")
+        new = tuple(getattr(module, "new_parameter_prefixes", lambda: ())())
+        problems = _fit(module.state_dict(), source, new)
+        if problems:
+            raise ConfigError(f"train.init_from: {checkpoint} holds model {source_model}, which does not fit "
+                              f"this run's model {cfg.model_name} ({cfg.model.kind}): {name} " + "; ".join(problems))
+        module.load_state_dict(source, strict=False)
+    return f"initialised from {checkpoint} (model {source_model}, iteration {state.get('iter', '?')})"

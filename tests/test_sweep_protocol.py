@@ -1,0 +1,195 @@
+"""Sweeps as graphs of runs that build on runs (the paper's progressive protocol), their locks,
+and `train.init_from`, through the `detach-run` CLI on tiny puppet runs."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+import torch
+
+from detach import cli
+from detach.runs.folder import find_runs
+from detach.runs.sweep import _lock_path, cells, file_lock, load_sweep
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = ["env.character=puppet", "sim.num_envs=4", "train.num_steps_per_env=8", "eval.num_envs=2",
+        "env.episode_length=60", "train.max_iterations=2"]
+
+
+def write_sweep(tmp_path: Path, models: str = "[mlp]", extra: str = "") -> Path:
+    sweep = tmp_path / "sweeps" / "mini.yaml"
+    sweep.parent.mkdir(parents=True, exist_ok=True)
+    sweep.write_text(textwrap.dedent(f"""\
+        extends: {ROOT / 'configs/sweeps/base/protocol.yaml'}
+        name: mini
+        models: {models}
+        seeds: [0]
+        table: skills
+        stages:
+          - {{name: follow, task: {ROOT / 'configs/tasks/follow.yaml'}}}
+          - {{name: carry, task: {ROOT / 'configs/tasks/carry.yaml'}, init_from: follow}}
+          - name: lh1
+            task: {ROOT / 'configs/tasks/lh1.yaml'}
+            init_from: carry
+            zero_shot: {{overrides: ["rewards.paid_skills=[follow, carry]"]}}
+        eval:
+          follow: [{ROOT / 'configs/tasks/follow.yaml'}]
+          carry: []
+          lh1: [{ROOT / 'configs/tasks/lh1.yaml'}, {ROOT / 'configs/tasks/lh2.yaml'}]
+        presets:
+          tiny: {{eval_trials: 2, overrides: [{', '.join(TINY)}]}}
+        """) + extra)
+    return sweep
+
+
+def test_a_sweep_runs_its_stages_in_order_each_starting_from_the_last(tmp_path: Path,
+                                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    sweep = write_sweep(tmp_path)
+    out = tmp_path / "runs"
+    assert cli.main(["--sweep", str(sweep), "--preset", "tiny", "--out", str(out)]) == 0
+    runs = {r.status().cell.split("/")[0]: r for r in find_runs(out)}
+    assert sorted(runs) == ["carry", "follow", "lh1"] and all(r.status().state == "finished" for r in runs.values())
+    carry, lh1 = runs["carry"].config(), runs["lh1"].config()
+    assert carry.train.init_from == str(runs["follow"].path.resolve())
+    assert lh1.train.init_from == str(runs["carry"].path.resolve())
+    assert lh1.rewards.paid_skills == ("follow", "carry")  # zero-shot: climb and sit never paid
+    assert "initialised from" in runs["lh1"].stdout_path.read_text()
+    assert (runs["follow"].path / "eval.json").exists() and not (runs["carry"].path / "eval.json").exists()
+    assert (runs["lh1"].path / "eval.json").exists() and (runs["lh1"].path / "eval_lh2.json").exists()
+    printed = capsys.readouterr().out
+    assert "[3/3]" in printed and "done" in printed
+    # a second run of the sweep has nothing to do; a table of it has both LH columns
+    stamps = {r.path: r.status_path.stat().st_mtime for r in find_runs(out)}
+    assert cli.main(["--sweep", str(sweep), "--preset", "tiny", "--out", str(out)]) == 0
+    assert {r.path: r.status_path.stat().st_mtime for r in find_runs(out)} == stamps
+    assert cli.main(["table", str(sweep), "--runs", str(out)]) == 2, "the default cells were never run"
+    assert "no eval.json found" in capsys.readouterr().err
+    assert cli.main(["table", str(sweep), "--runs", str(out), "--preset", "tiny"]) == 0
+    table = (out / "tables" / "mini_skills.md").read_text()
+    assert "LH1 (mean)" in table and "LH1 (chain)" in table and "| MLP |" in table
+    # an evaluation the sweep asks for that a finished cell lacks is run, without training again
+    lh1 = runs["lh1"]
+    (lh1.path / "eval_lh2.json").unlink()
+    trained = lh1.stdout_path.read_text().count("stage: ")
+    assert cli.main(["--sweep", str(sweep), "--preset", "tiny", "--out", str(out)]) == 0
+    assert (lh1.path / "eval_lh2.json").exists()
+    assert lh1.stdout_path.read_text().count("stage: ") == trained, "not trained again"
+
+
+@pytest.mark.slow
+def test_a_sweep_on_a_local_ray(tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    sweep = write_sweep(tmp_path, models="[mlp, cml]")
+    out = tmp_path / "runs"
+    assert cli.main(["--sweep", str(sweep), "--preset", "tiny", "--jobs", "2", "--launcher", "ray",
+                     "--out", str(out)]) == 0
+    runs = find_runs(out)
+    assert len(runs) == 6 and all(r.status().state == "finished" for r in runs)
+
+
+def test_sweeps_share_the_cells_of_a_common_stage(tmp_path: Path) -> None:
+    one = load_sweep(ROOT / "configs/sweeps/table1.yaml", quick=True)
+    two = load_sweep(ROOT / "configs/sweeps/table2.yaml", quick=True)
+    keys_one = {c.key for c in cells(one, ROOT / "configs/sweeps/table1.yaml")}
+    keys_two = {c.key for c in cells(two, ROOT / "configs/sweeps/table2.yaml")}
+    shared = {k.split("/")[0] for k in keys_one & keys_two}
+    assert shared == {"follow", "carry", "lh1"}  # table2 adds evaluations, not runs
+    comp = load_sweep(ROOT / "configs/sweeps/table1.yaml", quick=True)
+    from dataclasses import replace
+    comp = replace(comp, phase_b="composition")
+    comp_cells = {c.key: c for c in cells(comp, ROOT / "configs/sweeps/table1.yaml")}
+    assert {k for k in comp_cells if k.startswith(("follow", "carry"))} <= keys_one  # phase A shared
+    lh1 = [c for c in comp_cells.values() if c.stage == "lh1"]
+    assert {c.model for c in lh1} == {"cml_incremental", "tokenhsi_adapt", "detach"}
+    assert not {c.key for c in lh1} & keys_one
+
+
+def test_a_second_process_on_the_same_sweep_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    sweep = write_sweep(tmp_path)
+    out = tmp_path / "runs"
+    sweep_cfg = load_sweep(sweep, preset="tiny")
+    holder = subprocess.Popen([sys.executable, "-c", textwrap.dedent(f"""
+        import time
+        from pathlib import Path
+        from detach.runs.sweep import _lock_path, file_lock
+        with file_lock(_lock_path(Path({str(out)!r}), "sweep:{sweep.resolve()}:{sweep_cfg.preset}")) as held:
+            print(held, flush=True)
+            time.sleep(30)
+        """)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "True"
+        assert cli.main(["--sweep", str(sweep), "--preset", "tiny", "--out", str(out)]) == 2
+        assert "is already running in another process" in capsys.readouterr().err
+    finally:
+        holder.kill()
+
+
+def test_a_locked_cell_is_waited_for_not_run_twice(tmp_path: Path) -> None:
+    out = tmp_path / "runs"
+    key = "follow/mlp/s0/x"
+    with file_lock(_lock_path(out, key)) as held:
+        assert held
+        with file_lock(_lock_path(out, key), wait_s=0.0) as second:
+            assert not second  # another sweep would wait here until the first releases it
+    with file_lock(_lock_path(out, key), wait_s=0.0) as again:
+        assert again
+
+
+def test_bad_sweeps_are_one_line_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    sweep = write_sweep(tmp_path, extra="")
+    text = sweep.read_text().replace("init_from: carry", "init_from: sit")
+    sweep.write_text(text)
+    assert cli.main(["--sweep", str(sweep), "--out", str(tmp_path / "runs")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "init_from: expected an earlier stage (follow, carry), found 'sit'" in err[0]
+    sweep = write_sweep(tmp_path)
+    assert cli.main(["--sweep", str(sweep), "--preset", "laptopp", "--out", str(tmp_path / "runs")]) == 2
+    assert "has no preset 'laptopp'" in capsys.readouterr().err
+
+
+def test_init_from_refuses_another_architecture_naming_both_models(tmp_path: Path,
+                                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    follow = str(ROOT / "configs/tasks/follow.yaml")
+    assert cli.main([follow, "--model", "mlp", "--out", str(tmp_path), "--no-eval", *TINY]) == 0
+    source = find_runs(tmp_path)[0]
+    capsys.readouterr()
+    code = cli.main([follow, "--model", "tokenhsi", "--out", str(tmp_path / "b"), "--no-eval", *TINY,
+                     f"train.init_from={source.path}"])
+    assert code == 2  # a user error found while building: the run is marked failed with the reason
+    run = find_runs(tmp_path / "b")[0]
+    assert run.status().state == "failed"
+    assert "holds model mlp (mlp), which does not fit this run's model tokenhsi (tokenhsi)" in run.status().error
+    assert cli.main([follow, "--model", "mlp", "--out", str(tmp_path / "c"), "--dry-run", *TINY,
+                     "train.init_from=/nowhere/run"]) == 2
+    assert "train.init_from: /nowhere/run is neither a run folder nor a checkpoint file" in capsys.readouterr().err
+    for model, key in (("tokenhsi_adapt", "model.adapt_skills"), ("cml_incremental", "model.incremental")):
+        assert cli.main([follow, "--model", model, "--out", str(tmp_path / "d"), "--dry-run", *TINY]) == 2
+        err = capsys.readouterr().err
+        assert f"{model}.yaml" in err and key in err and "set train.init_from" in err, err
+    assert not (tmp_path / "d").exists()
+
+
+def test_init_from_copies_weights_normalisers_and_discriminator(tmp_path: Path) -> None:
+    from detach.config import resolve
+    from detach.train.setup import build_runner, load_initial_weights
+
+    follow = ROOT / "configs/tasks/follow.yaml"
+    assert cli.main([str(follow), "--model", "mlp", "--out", str(tmp_path / "a"), "--no-eval", *TINY]) == 0
+    source = find_runs(tmp_path / "a")[0]
+    saved = torch.load(source.latest_checkpoint(), weights_only=True)
+    cfg = resolve(ROOT / "configs/tasks/carry.yaml", "mlp", [*TINY, f"train.init_from={source.path}"])
+    _env, runner = build_runner(cfg, None, "cpu", progress=False)
+    before = {k: v.clone() for k, v in runner.alg.actor.state_dict().items()}
+    assert "initialised from" in load_initial_weights(runner, cfg)
+    actor = runner.alg.actor.state_dict()
+    assert any(not torch.equal(before[k], actor[k]) for k in actor)
+    assert all(torch.equal(actor[k], saved["actor_state_dict"][k]) for k in actor)  # normaliser included
+    assert any("normalizer" in k for k in actor)
+    disc = runner.alg.discriminators.state_dict()
+    assert all(torch.equal(disc[k], saved["discriminator_state_dict"][k]) for k in disc)
+    assert runner.completed_iteration == -1, "a run started from another one counts its own iterations"
