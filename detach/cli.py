@@ -114,6 +114,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="with --sweep: use the sweep's quick preset (CPU smoke run)")
     parser.add_argument("--jobs", type=_int_in(1), default=1,
                         help="with --sweep: cells run in parallel (default: 1)")
+    parser.add_argument("--models", default=None, metavar="A,B",
+                        help="with --sweep: run only these of the sweep's models (their cells are "
+                             "the same as in the whole sweep, so a later full run skips them)")
     parser.add_argument("--launcher", choices=["local", "ray"], default="local",
                         help="with --sweep: a local worker pool, or Ray tasks (the cluster "
                              "of RAY_ADDRESS, else a local Ray); needs the [ray] extra")
@@ -219,7 +222,8 @@ def _main(argv: Sequence[str] | None = None) -> int:
             if len(args.preset) > 1:
                 raise ConfigError("--sweep takes one --preset (one of the sweep's presets)")
             failed = run_sweep(args.sweep, args.out, args.jobs, args.quick, args.device,
-                               launcher=args.launcher, preset=next(iter(args.preset), None))
+                               launcher=args.launcher, preset=next(iter(args.preset), None),
+                               models=args.models.split(",") if args.models else None)
             return 1 if failed else 0
         if args.resume:
             return _resume(args)

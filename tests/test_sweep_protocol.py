@@ -99,14 +99,16 @@ def test_sweeps_share_the_cells_of_a_common_stage(tmp_path: Path) -> None:
     keys_two = {c.key for c in cells(two, ROOT / "configs/sweeps/table2.yaml")}
     shared = {k.split("/")[0] for k in keys_one & keys_two}
     assert shared == {"follow", "carry", "lh1"}  # table2 adds evaluations, not runs
-    comp = load_sweep(ROOT / "configs/sweeps/table1.yaml", quick=True)
-    from dataclasses import replace
-    comp = replace(comp, phase_b="composition")
+    laptop = load_sweep(ROOT / "configs/sweeps/table1.yaml", preset="laptop")
+    comp = load_sweep(ROOT / "configs/sweeps/table1.yaml", preset="laptop_composition")  # extends: laptop
+    assert (laptop.phase_b, comp.phase_b) == ("zero_shot", "composition") and comp.eval_trials == 100
+    keys_laptop = {c.key for c in cells(laptop, ROOT / "configs/sweeps/table1.yaml")}
     comp_cells = {c.key: c for c in cells(comp, ROOT / "configs/sweeps/table1.yaml")}
-    assert {k for k in comp_cells if k.startswith(("follow", "carry"))} <= keys_one  # phase A shared
+    assert {k for k in comp_cells if k.startswith(("follow", "carry"))} <= keys_laptop  # phase A shared
     lh1 = [c for c in comp_cells.values() if c.stage == "lh1"]
     assert {c.model for c in lh1} == {"cml_incremental", "tokenhsi_adapt", "detach"}
-    assert not {c.key for c in lh1} & keys_one
+    assert not {c.key for c in lh1} & keys_laptop
+    assert all("train.max_iterations=300" in c.overrides for c in lh1)
 
 
 def test_a_second_process_on_the_same_sweep_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -117,7 +119,7 @@ def test_a_second_process_on_the_same_sweep_is_refused(tmp_path: Path, capsys: p
         import time
         from pathlib import Path
         from detach.runs.sweep import _lock_path, file_lock
-        with file_lock(_lock_path(Path({str(out)!r}), "sweep:{sweep.resolve()}:{sweep_cfg.preset}")) as held:
+        with file_lock(_lock_path(Path({str(out)!r}), "sweep:{sweep.resolve()}:{sweep_cfg.preset}:{sweep_cfg.models}")) as held:
             print(held, flush=True)
             time.sleep(30)
         """)], stdout=subprocess.PIPE, text=True)
@@ -150,6 +152,12 @@ def test_bad_sweeps_are_one_line_errors(tmp_path: Path, capsys: pytest.CaptureFi
     sweep = write_sweep(tmp_path)
     assert cli.main(["--sweep", str(sweep), "--preset", "laptopp", "--out", str(tmp_path / "runs")]) == 2
     assert "has no preset 'laptopp'" in capsys.readouterr().err
+    assert cli.main(["--sweep", str(sweep), "--models", "mlp,detach", "--out", str(tmp_path / "runs")]) == 2
+    assert "--models: 'detach' is not a model of sweep 'mini' (mlp)" in capsys.readouterr().err
+    sweep = write_sweep(tmp_path, extra="  loop: {extends: loop}\n")
+    assert cli.main(["--sweep", str(sweep), "--preset", "loop", "--out", str(tmp_path / "runs")]) == 2
+    err = capsys.readouterr().err
+    assert "mini.yaml" in err and "presets.loop.extends: expected another preset of this sweep (laptop, laptop_composition, quick, tiny), found 'loop'" in err
 
 
 def test_init_from_refuses_another_architecture_naming_both_models(tmp_path: Path,

@@ -34,7 +34,7 @@ from collections import deque
 from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Literal
+from typing import Literal, Sequence
 
 from detach.config import load_merged
 from detach.config_validate import Builder
@@ -68,6 +68,9 @@ class StageCfg:
 
 @dataclass(frozen=True)
 class PresetCfg:
+    extends: str | None = None
+    """Another preset of the sweep whose settings this one starts from (its own replace them;
+    its overrides come after the base's)."""
     seeds: tuple[int, ...] | None = None
     eval_trials: int | None = None
     overrides: tuple[str, ...] = ()
@@ -143,14 +146,28 @@ def load_sweep(path: Path, quick: bool = False, preset: str | None = None) -> Sw
         if preset not in sweep.presets:
             raise ConfigError(f"sweep '{sweep.name}' has no preset '{preset}'; presets: "
                               f"{', '.join(sweep.presets) or 'none'}", str(path))
-        p = sweep.presets[preset]
+        p = _resolved_preset(sweep, preset, builder)
         unknown = [s for s in p.stage_overrides if s not in names]
         if unknown:
             raise builder.error(("presets", preset, "stage_overrides", unknown[0]), "unknown stage")
         sweep = replace(sweep, seeds=p.seeds or sweep.seeds, eval_trials=p.eval_trials or sweep.eval_trials,
                         overrides=(*sweep.overrides, *p.overrides), phase_b=p.phase_b or sweep.phase_b,
-                        preset=preset)
+                        presets={**sweep.presets, preset: p}, preset=preset)
     return sweep
+
+
+def _resolved_preset(sweep: SweepCfg, name: str, builder: Builder, seen: tuple[str, ...] = ()) -> PresetCfg:
+    """The preset `name` with its `extends` chain merged in."""
+    p = sweep.presets[name]
+    if p.extends is None:
+        return p
+    if p.extends not in sweep.presets or p.extends in (*seen, name):
+        raise builder.error(("presets", name, "extends"), f"expected another preset of this sweep "
+                            f"({', '.join(k for k in sweep.presets if k != name)}), found {p.extends!r}")
+    base = _resolved_preset(sweep, p.extends, builder, (*seen, name))
+    return PresetCfg(None, p.seeds or base.seeds, p.eval_trials or base.eval_trials, (*base.overrides, *p.overrides),
+                     {**base.stage_overrides, **{k: (*base.stage_overrides.get(k, ()), *v) for k, v in p.stage_overrides.items()}},
+                     (*base.config_presets, *p.config_presets), p.phase_b or base.phase_b)
 
 
 def _digest(parts: dict) -> str:
@@ -363,11 +380,18 @@ def _eta(done: int, total: int, started: float) -> str:
 
 
 def run_sweep(sweep_path: Path, out: Path, jobs: int = 1, quick: bool = False, device: str = "cpu",
-              launcher: str = "local", preset: str | None = None) -> int:
-    """Run every cell that is not finished and evaluated; returns the number that failed."""
+              launcher: str = "local", preset: str | None = None, models: Sequence[str] | None = None) -> int:
+    """Run every cell that is not finished and evaluated (of `models` only, when given);
+    returns the number that failed."""
     sweep = load_sweep(sweep_path, quick, preset)
-    label = f"{sweep.name}" + (f" [{sweep.preset}]" if sweep.preset else "")
-    with file_lock(_lock_path(out, f"sweep:{Path(sweep_path).resolve()}:{sweep.preset}")) as held:
+    if models:
+        unknown = [m for m in models if m not in sweep.models]
+        if unknown:
+            raise ConfigError(f"--models: {unknown[0]!r} is not a model of sweep '{sweep.name}' "
+                              f"({', '.join(sweep.models)})", str(sweep_path))
+        sweep = replace(sweep, models=tuple(m for m in sweep.models if m in models))
+    label = f"{sweep.name}" + (f" [{sweep.preset}]" if sweep.preset else "") + (f" {{{','.join(models)}}}" if models else "")
+    with file_lock(_lock_path(out, f"sweep:{Path(sweep_path).resolve()}:{sweep.preset}:{sweep.models}")) as held:
         if not held:
             raise ConfigError(f"sweep {label} is already running in another process (lock in {out}/.locks)",
                               str(sweep_path))
