@@ -71,7 +71,8 @@ class TaskCfg:
 @dataclass(frozen=True)
 class SimCfg:
     backend: str = "mujoco_batch"
-    """Physics backend (`detach.sim`): `mujoco_batch` (CPU, all cores)."""
+    """Physics backend (`detach.sim`): `mujoco_batch` (CPU, all cores) or `warp` (MuJoCo Warp,
+    GPU; the `[warp]` extra)."""
     num_envs: int = 64
     physics_dt: float = 1.0 / 120.0
     substeps: int = 4
@@ -80,9 +81,15 @@ class SimCfg:
     """Threads stepping the batch; 0 = all cores."""
     friction: float = 1.0
     solver_iterations: int = 4
-    sleep: bool = True
+    sleep: bool | None = None
     """Let resting objects sleep (MuJoCo islands): untouched boxes and furniture cost nothing
-    until something touches them (~35% less physics per step in the LH scenes)."""
+    until something touches them (~35% less physics per step in the LH scenes). None: the
+    backend's default (on with mujoco_batch, off with warp, which does not support it)."""
+    nconmax: int = 96
+    """warp: contacts allocated per world (the buffer is shared by all worlds)."""
+    njmax: int = 256
+    """warp: constraint rows allocated per world (contacts x 4 pyramid edges, joint limits,
+    the grasp weld); a world past it raises an error naming this key."""
 
 
 @dataclass(frozen=True)
@@ -350,6 +357,7 @@ VALUE_RANGES: dict[str, Range] = {
     "seed": Range(0, 2**32 - 1),
     "sim.num_envs": AT_LEAST_1, "sim.physics_dt": POSITIVE, "sim.substeps": AT_LEAST_1,
     "sim.nthread": AT_LEAST_0, "sim.friction": AT_LEAST_0, "sim.solver_iterations": AT_LEAST_1,
+    "sim.nconmax": AT_LEAST_1, "sim.njmax": AT_LEAST_1,
     "env.episode_length": AT_LEAST_1, "env.success_threshold": POSITIVE, "env.max_transition_steps": AT_LEAST_1,
     "env.termination_height": AT_LEAST_0, "env.traj_fail_distance": POSITIVE, "env.mixed_init_prob": FRACTION,
     "env.history_self": AT_LEAST_1, "env.history_env": AT_LEAST_1, "env.amp_obs_steps": AT_LEAST_1,

@@ -140,7 +140,7 @@ def compile_scene(task: TaskCfg, character: Character, sim: SimCfg | None = None
     spec = mujoco.MjSpec()
     spec.modelname = f"{task.name}_{character.name}"
     configure_options(spec, sim.physics_dt, sim.solver_iterations)
-    if sim.sleep:
+    if sim.sleep is not False:  # None: not resolved by a backend (detach.sim.sim_settings); on
         spec.option.enableflags |= int(mujoco.mjtEnableBit.mjENBL_SLEEP)
     add_floor(spec, sim.friction)
     mu = (sim.friction, 0.005, 0.0001)

@@ -29,7 +29,7 @@ from detach.envs.plan_tracker import PlanTracker
 from detach.envs.resets import ReferenceSampler, ResetSampler
 from detach.envs.rewards import RewardManager
 from detach.envs.terminations import Terminations
-from detach.sim import make_backend
+from detach.sim import make_backend, sim_settings
 from detach.sim.raster import Raster
 from detach.sim.state import SceneIndex, SimState, read_state
 from detach.skills import PlanError, skill_names
@@ -58,7 +58,7 @@ class LHEnv(VecEnv):
     def __init__(self, cfg: RunConfig, num_envs: int | None = None, device: str | torch.device = "cpu",
                  eval_mode: bool = False, assets: dict | None = None, assets_root=None,
                  verbose: bool = True, seed: int | None = None) -> None:
-        ec, sc = cfg.env, cfg.sim
+        ec, sc = cfg.env, sim_settings(cfg.sim)
         self.cfg, self.device, self.eval_mode = cfg, torch.device(device), eval_mode
         self.num_envs = int(num_envs or (cfg.eval.num_envs if eval_mode else sc.num_envs))
         self.gen = torch.Generator().manual_seed(int(cfg.seed if seed is None else seed))

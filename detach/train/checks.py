@@ -14,7 +14,7 @@ from detach.character import character_class
 from detach.config_schema import RunConfig
 from detach.envs.rewards import RewardManager
 from detach.models.factory import model_class
-from detach.sim import check_backend
+from detach.sim import SimConfigError, check_backend, check_sim, sim_settings
 from detach.config import ConfigError
 from detach.skills import PlanError, canonical_name
 from detach.skills.plan import compile_plan
@@ -31,6 +31,9 @@ def complete_run_config(cfg: RunConfig) -> RunConfig:
         raise origin.error(("env", "character"), str(exc)) from None
     try:
         check_backend(cfg.sim.backend)
+        check_sim(cfg.sim, cfg.device)
+    except SimConfigError as exc:
+        raise origin.error(("sim", exc.key), str(exc)) from None
     except ValueError as exc:
         raise origin.error(("sim", "backend"), str(exc)) from None
     try:
@@ -66,6 +69,8 @@ def complete_run_config(cfg: RunConfig) -> RunConfig:
             find_init_checkpoint(cfg.train.init_from)
         except ConfigError as exc:
             raise origin.error(("train", "init_from"), str(exc).removeprefix("train.init_from: ")) from None
+    if cfg.sim != sim_settings(cfg.sim):  # config.yaml records what the backend decided
+        cfg = dataclasses.replace(cfg, sim=sim_settings(cfg.sim))
     if cfg.model.init_noise_std is None:
         cfg = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, init_noise_std=character.action_std))
     return cfg
