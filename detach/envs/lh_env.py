@@ -61,7 +61,8 @@ class LHEnv(VecEnv):
         ec, sc = cfg.env, sim_settings(cfg.sim)
         self.cfg, self.device, self.eval_mode = cfg, torch.device(device), eval_mode
         self.num_envs = int(num_envs or (cfg.eval.num_envs if eval_mode else sc.num_envs))
-        self.gen = torch.Generator().manual_seed(int(cfg.seed if seed is None else seed))
+        self.gen = torch.Generator(device=self.device).manual_seed(int(cfg.seed if seed is None else seed))
+        """Every random draw of task logic, on the env's device (no host round trip on a GPU)."""
         try:
             self.plan = compile_plan(cfg.task)
         except PlanError as exc:

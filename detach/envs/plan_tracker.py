@@ -122,7 +122,8 @@ class PlanTracker:
 
     def reset(self, ids: torch.Tensor, steps: torch.Tensor, root_xy: torch.Tensor) -> None:
         for i, options in self.choices.items():
-            pick = torch.randint(len(options), (len(ids),), generator=self.services.generator).to(options.device)
+            gen = self.services.generator
+            pick = torch.randint(len(options), (len(ids),), generator=gen, device=gen.device).to(options.device)
             self.objects[ids, i] = options[pick]
         self.subtask[ids] = 0
         self.hold[ids] = 0

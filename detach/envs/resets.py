@@ -44,7 +44,7 @@ class ResetSampler:
         """Resting height of each object (bbox centre z at reset), indexed by object; [-1] is 0."""
 
     def _rand(self, *shape: int) -> torch.Tensor:
-        return torch.rand(*shape, generator=self.gen).to(self.device)
+        return torch.rand(*shape, generator=self.gen, device=self.gen.device).to(self.device)
 
     def _use_reference(self, n: int) -> torch.Tensor:
         mode = self.cfg.env.init
@@ -80,7 +80,7 @@ class ResetSampler:
                     if key in r:
                         dst[ref] = r[key].to(self.device)
             else:
-                noise = torch.randn(m, NUM_DOF, generator=self.gen).to(self.device) * 0.05
+                noise = torch.randn(m, NUM_DOF, generator=self.gen, device=self.gen.device).to(self.device) * 0.05
                 rng = torch.as_tensor(dof_ranges(), dtype=torch.float32, device=self.device)
                 dof[ref] = torch.maximum(torch.minimum(noise, rng[:, 1]), rng[:, 0])
         qpos = self.qpos0.expand(n, -1).clone()

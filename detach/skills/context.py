@@ -30,7 +30,8 @@ class SkillServices:
     raster: "Raster"
     trajectory: "TrajectoryReference"
     generator: torch.Generator
-    """The env's generator (CPU): every random draw of task logic comes from it."""
+    """The env's generator, on the env's device: every random draw of task logic comes from it
+    (`torch.rand(..., generator=g, device=g.device)`)."""
     device: torch.device
     dt: float
     """Control step, seconds."""

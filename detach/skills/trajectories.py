@@ -40,7 +40,7 @@ def random_trajectories(start_xy: torch.Tensor, heading: torch.Tensor, cfg: Traj
     dt = float(duration) / (V - 1)
 
     def rand(*shape: int) -> torch.Tensor:
-        return torch.rand(*shape, generator=generator, device="cpu").to(dev)
+        return torch.rand(*shape, generator=generator, device=generator.device if generator else "cpu").to(dev)
 
     speed = torch.empty(n, V - 1, device=dev)
     v = cfg.speed_min + (cfg.speed_max - cfg.speed_min) * rand(n)
@@ -153,7 +153,8 @@ class TrajectoryReference:
         self.t0[ids] = steps
 
     def load_random(self, ids: torch.Tensor, start_xy: torch.Tensor, generator: torch.Generator) -> None:
-        heading = (torch.rand(len(ids), generator=generator) * 2 - 1).to(self.verts.device) * math.pi
+        heading = (torch.rand(len(ids), generator=generator, device=generator.device) * 2 - 1
+                   ).to(self.verts.device) * math.pi
         verts, dt = random_trajectories(start_xy, heading, self.cfg, self.rand_duration, generator)
         self.verts[ids] = pad_to(verts, self.length)
         self.vertex_dt[ids] = dt

@@ -80,7 +80,15 @@ def amp_reference_sampler(lib: MotionLib, steps: int, dt: float, conditional: bo
 def reset_reference_sampler(lib: MotionLib) -> Callable[[int, torch.Generator], dict]:
     """Reference-state initialisation source in the format `detach.envs.resets` expects."""
 
+    own: list[torch.Generator] = []
+
     def sample(n: int, generator: torch.Generator) -> dict[str, torch.Tensor]:
+        if generator.device.type != lib.device.type:
+            # the env's generator on a GPU, the clips on the CPU: a CPU generator seeded once from it
+            if not own:
+                seed = int(torch.randint(2**62, (1,), generator=generator, device=generator.device))
+                own.append(torch.Generator(device=lib.device).manual_seed(seed))
+            generator = own[0]
         ids = lib.sample_clips(n, generator=generator)
         times = lib.sample_times(ids, generator=generator)
         s = lib.state(ids, times)
