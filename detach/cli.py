@@ -250,6 +250,13 @@ def _train(args: argparse.Namespace) -> int:
         sys.stdout.write(dump(cfg))
         print(f"# run folder: {args.out / run_folder_name(cfg)}")
         return 0
+    from detach.train.distributed import is_worker
+
+    if is_worker():  # torchrun rank > 0: trains in step with rank 0, which alone writes the run folder
+        from detach.train.setup import train_worker
+
+        train_worker(cfg)
+        return 0
     from detach.runs.job import run_job
     from detach.runs.session import train_and_evaluate
 

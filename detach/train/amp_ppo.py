@@ -20,6 +20,12 @@ What it adds to PPO:
   update; only `aux_loss_fn(obs, stage)` is minimised (encoder pre-training). In other stages
   PPO updates and then `aux_loss_fn` runs over the same rollout (alternating optimisation
   with the PPO optimiser, whose parameter list skips frozen parameters' missing gradients).
+
+Multi-GPU (rsl-rl's distributed path, `torchrun`): besides PPO's actor and critic, the
+discriminators start from rank 0's weights and normaliser statistics (`broadcast_parameters`),
+their gradients and those of the auxiliary losses are averaged over ranks before each
+optimiser step, and the discriminators' normalisers are updated with every rank's windows, so
+that all ranks hold the same networks after every update.
 """
 
 from __future__ import annotations
@@ -30,6 +36,7 @@ from typing import Callable
 import torch
 from tensordict import TensorDict
 from rsl_rl.algorithms import PPO
+from rsl_rl.utils.utils import reduce_gradients_in_buckets
 
 from detach.config_schema import AmpCfg
 from detach.models.rsl_rl_models import link_shared_trunk
@@ -223,11 +230,13 @@ class AmpPPO(PPO):
                     sums[tag] = sums.get(tag, 0.0) + float(value.detach()) / self.amp.disc_updates
             self.disc_optimizer.zero_grad()
             total.backward()
+            self._average_gradients(self.discriminators.parameters())
             self.disc_optimizer.step()
         with torch.no_grad():
+            seen = self._gather(policy)
             for name, disc in self.discriminators.items():
                 sel = self.amp_parts[name]
-                disc.normalizer.update(policy if sel is None else policy.index_select(-1, sel))
+                disc.normalizer.update(seen if sel is None else seen.index_select(-1, sel))
         self.replay.insert(policy, cond)
         return sums
 
@@ -241,14 +250,34 @@ class AmpPPO(PPO):
             if loss.requires_grad:
                 self.optimizer.zero_grad()
                 loss.backward()
-                torch.nn.utils.clip_grad_norm_(
-                    [p for g in self.optimizer.param_groups for p in g["params"]],
-                    self.max_grad_norm)
+                params = [p for g in self.optimizer.param_groups for p in g["params"]]
+                self._average_gradients(params)
+                torch.nn.utils.clip_grad_norm_(params, self.max_grad_norm)
                 self.optimizer.step()
             for key, value in logs.items():
                 sums[key] = sums.get(key, 0.0) + float(value)
             steps += 1
         return {k: v / max(steps, 1) for k, v in sums.items()}
+
+    # ------------------------------------------------------------------ multi-GPU
+    def broadcast_parameters(self) -> None:
+        """Rank 0's actor, critic, discriminators and their normalisers on every rank."""
+        super().broadcast_parameters()
+        for tensor in self.discriminators.state_dict().values():
+            torch.distributed.broadcast(tensor, src=0)
+
+    def _average_gradients(self, params) -> None:
+        """Average the gradients of params over ranks (no-op on one process)."""
+        if self.is_multi_gpu:
+            reduce_gradients_in_buckets(params, self.gpu_world_size, self.grad_reduce_bucket_mb)
+
+    def _gather(self, x: torch.Tensor) -> torch.Tensor:
+        """x of every rank, concatenated in rank order (x itself on one process)."""
+        if not self.is_multi_gpu:
+            return x
+        parts = [torch.empty_like(x) for _ in range(self.gpu_world_size)]
+        torch.distributed.all_gather(parts, x.contiguous())
+        return torch.cat(parts)
 
     # ------------------------------------------------------------------ state
     def save(self) -> dict:

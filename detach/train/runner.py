@@ -171,6 +171,8 @@ class DetachRunner(OnPolicyRunner):
     def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False) -> None:
         """Run iterations completed_iteration+1 .. num_learning_iterations-1 (absolute)."""
         start = self.completed_iteration + 1
+        if self.is_distributed:  # torchrun: rank 0's weights, loaded or resumed after __init__'s broadcast
+            self.alg.broadcast_parameters()
         if init_at_random_ep_len and start == 0:
             self.env.episode_length_buf = torch.randint_like(
                 self.env.episode_length_buf, high=int(self.env.max_episode_length))

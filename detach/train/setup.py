@@ -22,6 +22,7 @@ from detach.models.losses import combine_aux_losses
 from detach.motion import default_motion_lib
 from detach.run_contract import CHECKPOINT_DIR, CONFIG_FILE, checkpoint_iteration
 from detach.skills import canonical_name
+from detach.train.distributed import local_device, rank
 from detach.train.motion_bridge import amp_part_indices, amp_reference_sampler, reset_reference_sampler
 from detach.train.runner import DetachRunner, MetricsSink
 from detach.train.schedule import stage_lengths
@@ -91,9 +92,10 @@ def build_runner(cfg: RunConfig, checkpoint_dir: Path | None, device: str, log: 
                  progress: bool = True) -> tuple[LHEnv, DetachRunner]:
     if cfg.train.torch_threads > 0:
         torch.set_num_threads(cfg.train.torch_threads)
-    seed_everything(cfg.seed)
+    device = local_device(device)
+    seed_everything(cfg.seed + rank())  # torchrun: each rank its own experience
     prepare_assets(cfg.task)
-    env = make_env(cfg, device=device)
+    env = make_env(cfg, device=device, seed=cfg.seed + rank())
     print(env.describe(), flush=True)
     lib = default_motion_lib(device="cpu")
     env.set_reference_sampler(reset_reference_sampler(lib))
@@ -127,6 +129,14 @@ def build_runner(cfg: RunConfig, checkpoint_dir: Path | None, device: str, log: 
 
         alg.aux_loss_fn = aux_loss
     return env, runner
+
+
+def train_worker(cfg: RunConfig) -> None:
+    """A torchrun rank > 0 (`detach.train.distributed`): the same runner without run folder,
+    log or progress bar, training in step with rank 0, whose weights it receives when
+    training starts."""
+    _env, runner = build_runner(cfg, None, cfg.device, log=None, progress=False)
+    runner.learn(cfg.train.max_iterations)
 
 
 def find_init_checkpoint(source: str) -> tuple[Path, Path | None]:
