@@ -58,14 +58,15 @@ def _check_warp(cfg: SimCfg, device: str) -> list[tuple[str, str]]:
     from detach.sim.warp_backend import warp_available
 
     problems = []
-    why = warp_available()
-    if why is not None:
-        problems.append(("backend", why))
+    if not (device == "cpu" or device.startswith("cuda")):
+        problems.append(("backend", f"the warp backend runs on cpu or cuda devices, not '{device}'"))
     if cfg.sleep:
         problems.append(("sleep", "the warp backend does not support sleeping (fresh LH worlds went non-finite "
                                   "after one step with it, mujoco-warp 4.0.0); set sim.sleep=false or null"))
-    if not (device == "cpu" or device.startswith("cuda")):
-        problems.append(("backend", f"the warp backend runs on cpu or cuda devices, not '{device}'"))
+    if not problems:
+        why = warp_available()  # imports warp: only once the settings are known to be fine
+        if why is not None:
+            problems.append(("backend", why))
     return problems
 
 

@@ -75,7 +75,7 @@ def import_warp():
     if not getattr(wp, "_detach_initialised", False):
         if wp.config.kernel_cache_dir is None:
             wp.config.kernel_cache_dir = str(kernel_cache_dir())
-        wp.config.quiet = True
+        wp.config.log_level = wp.LOG_WARNING  # no banner, no per-module load lines
         wp.init()
         wp._detach_initialised = True
     return wp, mjw
