@@ -298,6 +298,15 @@ class TrainCfg:
     stages: StagesCfg = StagesCfg()
     torch_threads: int = 0
     """torch CPU threads; 0 keeps torch's default (one per core, or OMP_NUM_THREADS)."""
+    logger: Literal["none", "tensorboard", "wandb"] = "none"
+    """Where the metrics go besides log.mcap, through rsl-rl's own writers into the run folder:
+    `tensorboard` (event files), `wandb` (Weights & Biases, the `[wandb]` extra; `WANDB_MODE=offline`
+    keeps it on disk)."""
+    wandb_project: str = "detach"
+    """The W&B project of `logger: wandb` (the run's name is its folder's)."""
+    check_for_nan: bool = True
+    """rsl-rl's check: a NaN or infinity in the observations, rewards, dones, actions or losses
+    stops the run (status failed, naming the iteration, step and environments)."""
 
 
 @dataclass(frozen=True)

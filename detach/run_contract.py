@@ -14,6 +14,11 @@ project: any layer may read it. docs/ARCHITECTURE.md ("Run folder") describes it
         checkpoints/model_<iteration>.pt
         checkpoints/amp_replay_<iteration>.pt   AMP replay buffer of the newest checkpoint
         eval.json            `EvalResult` on the run's own task; eval_<task>.json on another
+        provenance.json      code and machine of the run: commit, dirty diff, python, package
+                             versions, device, command line (one record per start / resume)
+        params/agent.yaml    rsl-rl's train config (OnPolicyRunner(env, it).load(checkpoint))
+        events.out.tfevents.*, wandb/   with train.logger tensorboard / wandb
+        exported/policy_<iteration>.onnx | .pt (+ .json: input layout)   `detach-run export`
 
 JSON, YAML and checkpoint files are written through `atomic_writer` (whole or not at all, with
 the user's umask); stdout.log and log.mcap grow by appending and read up to a crash.
@@ -39,6 +44,13 @@ LOG_FILE = "log.mcap"
 CHECKPOINT_DIR = "checkpoints"
 EVAL_FILE = "eval.json"
 EVAL_GLOB = "eval*.json"
+PROVENANCE_FILE = "provenance.json"
+PARAMS_DIR = "params"
+AGENT_PARAMS_FILE = "params/agent.yaml"
+"""rsl-rl's train config of the run (IsaacLab's name), relative to the run folder."""
+EXPORT_DIR = "exported"
+EXPORT_FORMATS: dict[str, str] = {"onnx": ".onnx", "jit": ".pt"}
+"""`detach-run export --format` -> file suffix."""
 RUN_MARKERS = (CONFIG_FILE, STATUS_FILE)
 """A folder holding either file is a run folder."""
 
@@ -130,6 +142,12 @@ def fsync_folder(folder: Path) -> None:
             os.fsync(fd)
         finally:
             os.close(fd)
+
+
+def export_file(iteration: int, fmt: str) -> str:
+    """File name (in exported/) of the policy of checkpoint `iteration` in `fmt` (onnx, jit);
+    its layout description is the same name with `.json`."""
+    return f"policy_{int(iteration)}{EXPORT_FORMATS[fmt]}"
 
 
 def eval_file(task: str | None = None) -> str:

@@ -36,8 +36,8 @@ INTEGER_STEPS = tuple(float(m * 10 ** e) for e in range(10) for m in (1, 2, 5))
 
 
 def metric_group(key: str) -> str:
-    """'loss/surrogate' -> 'loss'; 'Reward/follow/position' and 'reward/mean' -> 'reward'
-    (one group whatever the case); keys without a prefix ('fps') form the group 'general'."""
+    """'Loss/surrogate' -> 'loss'; 'Episode_Reward/follow/position' -> 'episode_reward' (one
+    group whatever the case); keys without a prefix ('fps') form the group 'general'."""
     return key.split("/", 1)[0].lower() if "/" in key else "general"
 
 

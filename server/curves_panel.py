@@ -1,6 +1,6 @@
 """The Curves tab: the /metrics of the runs this browser compares, like TensorBoard.
 
-One metric group at a time (prefixes of one case: 'Reward/...' and 'reward/...' together),
+One metric group at a time (prefixes of one case: 'Loss/...' and 'loss/...' together),
 the pinned metrics, or whatever matches the filter box, at most MAX_CHARTS charts; x as
 iteration, samples or wall time; smoothing; log scale; a wide view; any chart enlarged in a
 floating window. Only the charts on screen exist, and a chart is re-sent only when its own
@@ -25,8 +25,8 @@ from server.session import Panel, Session, chosen, is_quiet, quietly
 
 MAX_CHARTS = 24
 PINNED, ALL = "pinned", "all metrics"
-DEFAULT_GROUPS = ("success", "reward", "episode", "loss")
-"""The group shown first, if the runs have it."""
+DEFAULT_GROUPS = ("episode_success", "train", "episode_reward", "loss")
+"""The group shown first, if the runs have it (rsl-rl's metric names: docs/METRICS.md)."""
 CHART_HEIGHT = 250
 """Pixels: the same in both views, so the wide view shows longer time axes, not bigger charts."""
 PINS_KEY = "detach-dashboard-pins"
@@ -46,7 +46,7 @@ def curves_panel(s: Session) -> Panel:
     legend = gui.add_markdown("")
     with gui.add_folder("View"):
         filter_box = gui.add_text("Metric filter", "", hint="regular expressions or words, e.g. "
-                                  "'success' or 'loss/(value|surrogate)'")
+                                  "'success' or 'Loss/(value|surrogate)'")
         view = gui.add_dropdown("Show", (ALL,), hint="one group of metrics, the pinned ones "
                                 "or all (with the filter)")
         x_axis = gui.add_dropdown("X axis", X_AXES, initial_value="iteration")

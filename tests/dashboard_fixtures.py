@@ -141,13 +141,13 @@ def make_run(root: Path, model_name: str, seed: int, *, shift: float, now: float
         for it in range(iterations):
             stage = "skills" if it < iterations // 2 else "joint"
             x = (it + 1) / iterations
-            metrics = {"reward/mean": x * (2 + seed) + 0.1 * rng.random(),
-                       "loss/surrogate": -0.01 * x, "loss/value": 1.0 / (1 + it),
-                       "loss/amp": 0.5 - 0.2 * x, "success/follow": min(1.0, 1.2 * x),
-                       "success/carry": x * x, "fps": 900.0 + 50 * rng.random(),
-                       "episode/length": 100 + 10 * it, "learning_rate": 1e-3 * 0.9 ** it}
-            if it >= iterations // 2:  # logged from the first evaluation on, as Success/* are
-                metrics["Success/late"] = 0.2 + 0.6 * x
+            metrics = {"Train/mean_reward": x * (2 + seed) + 0.1 * rng.random(),
+                       "Loss/surrogate": -0.01 * x, "Loss/value": 1.0 / (1 + it),
+                       "Loss/amp": 0.5 - 0.2 * x, "Episode_Success/follow": min(1.0, 1.2 * x),
+                       "Episode_Success/carry": x * x, "Perf/total_fps": 900.0 + 50 * rng.random(),
+                       "Train/mean_episode_length": 100 + 10 * it, "Loss/learning_rate": 1e-3 * 0.9 ** it}
+            if it >= iterations // 2:  # logged from the first evaluation on, as success fractions are
+                metrics["Episode_Success/late"] = 0.2 + 0.6 * x
             log.log_metrics(it, metrics, stage=stage)
         for f in range(frames):  # frames=0: a run that recorded no episode
             ahead = pos[f, 0, :2] + 0.45 * np.array([math.cos(heading), math.sin(heading)])

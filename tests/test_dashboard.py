@@ -46,7 +46,7 @@ def _write_log(path: Path, episodes: int = 3, frames: int = 25, flush_every: int
             for f in range(frames):
                 _frame(log, ep, f)
                 if f % 9 == 0:  # metrics interleaved with frames, as during evaluation
-                    log.log_metrics(it, {"reward/mean": it / 10, "loss/value": 1 / (1 + it)})
+                    log.log_metrics(it, {"Train/mean_reward": it / 10, "Loss/value": 1 / (1 + it)})
                     it += 1
 
 
@@ -101,12 +101,12 @@ def test_tail_follows_a_live_writer(tmp_path: Path) -> None:
     path = tmp_path / "log.mcap"
     log = RunLogWriter(path, flush_every=5)
     tail = LogTail(path)
-    log.log_metrics(0, {"fps": 100.0})
+    log.log_metrics(0, {"Perf/total_fps": 100.0})
     tail.refresh()
-    assert [m["fps"] for m in tail.metrics] == [100.0]
+    assert [m["Perf/total_fps"] for m in tail.metrics] == [100.0]
     for f in range(12):
         _frame(log, 0, f)
-    log.log_metrics(1, {"fps": 120.0})  # flushes the frames too
+    log.log_metrics(1, {"Perf/total_fps": 120.0})  # flushes the frames too
     tail.refresh()
     assert [m["iteration"] for m in tail.metrics] == [0, 1]
     assert tail.load_episode().num_frames == 12
@@ -166,17 +166,17 @@ def test_trials_recorded_side_by_side_are_episodes_of_their_own(tmp_path: Path) 
 def test_tail_follows_a_log_rewritten_on_resume_and_concatenated_streams(tmp_path: Path) -> None:
     path = tmp_path / "log.mcap"
     with RunLogWriter(path) as log:
-        log.log_metrics(0, {"fps": 1.0})
+        log.log_metrics(0, {"Perf/total_fps": 1.0})
         for f in range(8):
             _frame(log, 0, f)
     tail = LogTail(path)
     tail.refresh()
     with RunLogWriter(path, append=True) as log:  # replaces the file (a new inode)
-        log.log_metrics(1, {"fps": 2.0})
+        log.log_metrics(1, {"Perf/total_fps": 2.0})
         for f in range(5):  # a second evaluation records episode 0 again
             _frame(log, 0, f)
     assert tail.refresh()
-    assert [m["fps"] for m in tail.metrics] == [1.0, 2.0]
+    assert [m["Perf/total_fps"] for m in tail.metrics] == [1.0, 2.0]
     assert tail.complete and tail.problem is None
     assert tail.load_episode(0).num_frames == 5, "the latest recording of episode 0"
     both = tmp_path / "both.mcap"
@@ -329,15 +329,15 @@ def test_metrics_appended_while_reading_reach_the_series(tmp_path: Path) -> None
     log = RunLogWriter(run / "log.mcap")
     seen = []
     for it in range(8):
-        log.log_metrics(it, {"reward/mean": float(it), **({"success/follow": 0.5} if it % 2 else {})})
+        log.log_metrics(it, {"Train/mean_reward": float(it), **({"Episode_Success/follow": 0.5} if it % 2 else {})})
         index.refresh()
         seen.append(len(index.reader(run.name).series().iterations))
-    log.log_metrics(3, {"reward/mean": 30.0})  # a resumed run repeats an iteration
+    log.log_metrics(3, {"Train/mean_reward": 30.0})  # a resumed run repeats an iteration
     index.refresh()
     series = index.reader(run.name).series()
     assert seen == list(range(1, 9))
-    assert series.columns["reward/mean"][3] == 30.0
-    assert np.isnan(series.columns["success/follow"][0]) and series.columns["success/follow"][1] == 0.5
+    assert series.columns["Train/mean_reward"][3] == 30.0
+    assert np.isnan(series.columns["Episode_Success/follow"][0]) and series.columns["Episode_Success/follow"][1] == 0.5
     log.close()
 
 

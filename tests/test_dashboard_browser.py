@@ -143,7 +143,7 @@ def test_dashboard_in_chromium(dashboard, tmp_path: Path) -> None:
 
             # Defect 1: Success/late starts at iteration 10 of 20 and has a drawn line.
             _tab(a, "Curves")
-            late = a.locator(".uplot").filter(has_text="Success/late")
+            late = a.locator(".uplot").filter(has_text="Episode_Success/late")
             expect(late).to_be_visible(timeout=WAIT_MS)
             box = late.bounding_box()
             assert box and box["width"] > 50 and box["height"] > 50, box

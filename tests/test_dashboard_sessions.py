@@ -272,8 +272,8 @@ def test_pins_enlarge_and_view_controls_of_the_curves(runs: Path) -> None:
             return [e["props"]["title"] for e in client.elements.values()
                     if e["type"] == "GuiUplotMessage"]
 
-        client.wait_for(lambda: "success/follow" in charts(), what="the success group")
-        assert client.value("Show") == "success (3)"
+        client.wait_for(lambda: "Episode_Success/follow" in charts(), what="the success group")
+        assert client.value("Show") == "episode_success (3)"
         pin = [u for u, e in client.elements.items() if e["type"] == "GuiButtonGroupMessage"
                and "☆ Pin" in e["props"]["options"]][0]
         client.send("GuiUpdateMessage", uuid=pin, updates={"value": "☆ Pin"})
@@ -281,9 +281,9 @@ def test_pins_enlarge_and_view_controls_of_the_curves(runs: Path) -> None:
                                     for e in client.elements.values()), what="the pin")
         client.set("Show", "pinned")
         client.wait_for(lambda: len(charts()) == 1, what="the pinned chart only")
-        client.set("Show", "loss (3)")
+        client.set("Show", "loss (4)")
         client.set("Metric filter", "value|amp")
-        client.wait_for(lambda: sorted(charts()) == ["loss/amp", "loss/value"], what="the filter")
+        client.wait_for(lambda: sorted(charts()) == ["Loss/amp", "Loss/value"], what="the filter")
         client.set("Smoothing", 0.5)
         client.wait_for(lambda: any(len(e["props"]["series"]) == 3 for e in client.elements.values()
                                     if e["type"] == "GuiUplotMessage"), what="raw + smoothed")

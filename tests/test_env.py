@@ -47,7 +47,7 @@ def test_vecenv_contract_and_obs_sizes_equal_across_lh(lh_envs):
         obs, rew, dones, extras = env.step(torch.zeros(2, env.num_actions))
         assert rew.shape == (2,) and dones.shape == (2,) and extras["time_outs"].shape == (2,)
         assert all(torch.isfinite(v).all() for v in obs.values())
-        assert any(k.startswith("Reward/") for k in extras["log"])
+        assert any(k.startswith("Episode_Reward/") for k in extras["log"])
     sp = specs["lh1"]
     assert (sp.self_dim, sp.env_dim, sp.amp_dim, sp.num_skills) == (287, 681, 89, 4)
 
@@ -102,7 +102,8 @@ def test_iet_and_time_out():
     short = make_env(_two_point_plan_cfg(episode_length=5), num_envs=1)
     for _ in range(5):
         _, _, dones, extras = short.step(torch.zeros(1, short.num_actions))
-    assert dones.all() and extras["time_outs"].all() and extras["log"]["Episode/length"].item() == 5
+    assert dones.all() and extras["time_outs"].all() and short.episode_length_buf.item() == 0
+    assert extras["episode_progress"]["length"].item() == 5 and "Episode_Termination/fell" in extras["log"]
 
 
 def test_fall_terminates_and_resets():

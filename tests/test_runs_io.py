@@ -72,7 +72,7 @@ def _write_log(path: Path, frames: int = 40) -> None:
                                                      [0.5, 0.5, 0.7], False)],
                                    {"0": [[0, 0], [1, 1]]}, [], ["pelvis", "torso"], []))
         for i in range(5):
-            log.log_metrics(i, {"reward/mean": i / 10, "loss/value": 1.0 - i / 10}, stage="ppo")
+            log.log_metrics(i, {"Train/mean_reward": i / 10, "Loss/value": 1.0 - i / 10}, stage="ppo")
         for f in range(frames):
             log.log_frame(EpisodeFrame(episode=f // 20, frame=f % 20, time=f / 30,
                                        bodies=["pelvis", "torso"], pos=[[0, 0, 0.9 + f], [0, 0, 1.2]],
@@ -84,8 +84,8 @@ def test_mcap_round_trip_message_for_message(tmp_path: Path) -> None:
     _write_log(path)
     metrics = read_metrics(path)
     assert [m["iteration"] for m in metrics] == list(range(5))
-    assert metrics[3] == {"iteration": 3, "stage": "ppo", "reward/mean": 0.3,
-                          "loss/value": pytest.approx(0.7)}
+    assert metrics[3] == {"iteration": 3, "stage": "ppo", "Train/mean_reward": 0.3,
+                          "Loss/value": pytest.approx(0.7)}
     assert read_scene(path).objects[0].name == "box"
     episodes = read_episodes(path)
     assert sorted(episodes) == [0, 1] and len(episodes[1]) == 20
@@ -114,9 +114,9 @@ def test_truncated_mcap_is_readable_up_to_the_cut(tmp_path: Path) -> None:
 def test_live_log_is_readable_before_close(tmp_path: Path) -> None:
     path = tmp_path / "log.mcap"
     log = RunLogWriter(path, flush_every=1000)
-    log.log_metrics(0, {"fps": 100.0})
-    log.log_metrics(1, {"fps": 120.0})
-    assert [m["fps"] for m in read_metrics(path)] == [100.0, 120.0]
+    log.log_metrics(0, {"Perf/total_fps": 100.0})
+    log.log_metrics(1, {"Perf/total_fps": 120.0})
+    assert [m["Perf/total_fps"] for m in read_metrics(path)] == [100.0, 120.0]
     log.close()
     assert json.loads(json.dumps(read_metrics(path)))[1]["iteration"] == 1
 
@@ -125,7 +125,7 @@ def test_append_keeps_earlier_messages(tmp_path: Path) -> None:
     path = tmp_path / "log.mcap"
     _write_log(path, frames=4)
     with RunLogWriter(path, append=True) as log:
-        log.log_metrics(5, {"reward/mean": 0.5})
+        log.log_metrics(5, {"Train/mean_reward": 0.5})
     assert [m["iteration"] for m in read_metrics(path)] == [0, 1, 2, 3, 4, 5]
     assert read_scene(path).objects[0].name == "box"
     assert sum(len(v) for v in read_episodes(path).values()) == 4
@@ -137,9 +137,9 @@ def test_resumed_log_keeps_only_iterations_up_to_the_checkpoint(tmp_path: Path) 
     _write_log(path, frames=4)
     with RunLogWriter(path, append=True, metrics_until=2) as log:
         for iteration in (3, 4, 5):
-            log.log_metrics(iteration, {"reward/mean": 1.0})
+            log.log_metrics(iteration, {"Train/mean_reward": 1.0})
     assert [m["iteration"] for m in read_metrics(path)] == [0, 1, 2, 3, 4, 5]
-    assert read_metrics(path)[3]["reward/mean"] == 1.0, "the retrained iteration replaces the old"
+    assert read_metrics(path)[3]["Train/mean_reward"] == 1.0, "the retrained iteration replaces the old"
     assert sum(len(v) for v in read_episodes(path).values()) == 4, "episodes are kept"
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 

@@ -130,7 +130,7 @@ class LHEnv(VecEnv):
         timeout = self.episode_length_buf >= self.max_episode_length
         time_outs = (timeout | self.terminations.last_subtask_ends(last_done)) & ~terminated
         dones = terminated | time_outs
-        extras: dict = {"time_outs": time_outs, "log": {f"Reward/{k}": v.mean() for k, v in parts.items()}}
+        extras: dict = {"time_outs": time_outs, "log": {f"Episode_Reward/{k}": v.mean() for k, v in parts.items()}}
         ids = dones.nonzero(as_tuple=False).squeeze(-1)
         if len(ids):
             prog = self.tracker.progress()

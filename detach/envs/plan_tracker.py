@@ -154,9 +154,11 @@ class PlanTracker:
 
     def episode_log(self, prog: dict[str, torch.Tensor], ids: torch.Tensor,
                     terminations: tuple[str, ...]) -> dict[str, torch.Tensor]:
-        """Values of the finished episodes ids for the training log (rsl-rl's `Episode/` names)."""
-        log = {"Episode/length": prog["length"][ids].float(), "Success/lh": prog["lh_success"][ids].float()}
-        log.update({f"Episode/{name}": prog[name][ids].float() for name in terminations})
+        """Values of the finished episodes ids for the training log, named as IsaacLab's envs
+        name theirs for rsl-rl (`Episode_Termination/`, `Episode_Success/`; docs/METRICS.md). The
+        episode length is rsl-rl's own `Train/mean_episode_length`."""
+        log = {"Episode_Success/lh": prog["lh_success"][ids].float()}
+        log.update({f"Episode_Termination/{name}": prog[name][ids].float() for name in terminations})
         for i, s in enumerate(self.plan):
-            log[f"Success/{i}_{s.skill}"] = prog["score"][ids, i]
+            log[f"Episode_Success/{i}_{s.skill}"] = prog["score"][ids, i]
         return log

@@ -28,6 +28,15 @@ sum Σ_k w_k V_k (weights `objective_weights`, default 1; set them to the reward
 the sum is the value of the combined reward). `value_heads(obs)` returns [N, K] in objective
 order, for a trainer that computes GAE and normalises advantages per objective.
 
+Export (`as_jit`, `as_onnx`, rsl-rl's API; `detach-run export`): every kind exports as
+`FlatPolicy`, the deterministic policy on rsl-rl's flat input, the actor's groups
+concatenated in `obs_groups` order (self, env, task; histories time-major, oldest frame
+first), with the input normaliser inside: obs [N, D] -> actions [N, num_actions].
+
+Stock rsl-rl code builds these classes from a YAML train config (the run's params/agent.yaml):
+`obs_spec` and `model` then arrive as plain dicts and are turned back into `ObsSpec` and the
+kind's config class here.
+
 Later training stages (TokenHSI's adapters, CML's incremental learning): the model of the new
 stage freezes the previous stage's policy (requires_grad False, input statistics not updated),
 adds its new module behind `head_output` and names that module's state-dict prefixes in
@@ -36,6 +45,7 @@ adds its new module behind `head_output` and names that module's state-dict pref
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Iterator, Sequence
 from itertools import chain
 from typing import Any, ClassVar
@@ -48,6 +58,7 @@ from rsl_rl.utils import unpad_trajectories
 from tensordict import TensorDict
 
 from detach.config_schema import ModelCfg
+from detach.config_validate import Builder
 from detach.envs.obs_spec import ObsSpec
 from detach.models.adapters import CooperativePolicy, HeadAdapter
 from detach.models.cml import CMLCfg, CMLTrunk
@@ -87,6 +98,7 @@ class StructuredModel(MLPModel):
         distribution_cfg: dict | None = None,
         value_objectives: Sequence[str] | None = None,
     ) -> None:
+        obs_spec, model = plain_configs(obs_spec, model)
         if not isinstance(model, self.config_class):
             raise TypeError(f"{type(self).__name__} needs a {self.config_class.__name__}, got {type(model).__name__}")
         cfg, spec = model, obs_spec
@@ -224,10 +236,15 @@ class StructuredModel(MLPModel):
         return out
 
     def as_jit(self) -> nn.Module:
-        raise NotImplementedError(f"{type(self).__name__}: TorchScript export is not supported; use the eager model")
+        """The deterministic policy traced to TorchScript (a ScriptModule: rsl-rl's
+        `export_policy_to_jit` scripts it as it is), on the CPU."""
+        policy = FlatPolicy(self)
+        with torch.no_grad():
+            return torch.jit.trace(policy, policy.get_dummy_inputs(), check_trace=False)
 
     def as_onnx(self, verbose: bool = False) -> nn.Module:
-        raise NotImplementedError(f"{type(self).__name__}: ONNX export is not supported; use the eager model")
+        """The deterministic policy for `torch.onnx.export` (rsl-rl's `_OnnxMLPModel` API)."""
+        return FlatPolicy(self, verbose)
 
     # ----- multi-head critic -----
     def value_heads(self, obs: TensorDict) -> torch.Tensor:
@@ -454,21 +471,61 @@ class CMLModel(StructuredModel):
 
 
 class MLPBaselineModel(StructuredModel):
-    """Plain MLP on the concatenated normalised groups (same as rsl-rl's MLPModel); exportable."""
+    """Plain MLP on the concatenated normalised groups (same as rsl-rl's MLPModel)."""
 
     trunk_class = FlatTrunk
 
-    def as_jit(self) -> nn.Module:
-        self._check_exportable()
-        return MLPModel.as_jit(self)
 
-    def as_onnx(self, verbose: bool = False) -> nn.Module:
-        self._check_exportable()
-        return MLPModel.as_onnx(self, verbose)
+def plain_configs(obs_spec: ObsSpec | dict, model: ModelCfg | dict) -> tuple[ObsSpec, ModelCfg]:
+    """`obs_spec` and `model` as the typed objects, also when a YAML train config (params/
+    agent.yaml, read by stock rsl-rl code) gives them as dicts."""
+    if isinstance(obs_spec, dict):
+        obs_spec = ObsSpec(**obs_spec)
+    if isinstance(model, dict):
+        builder = Builder({}, "train_cfg (model)")
+        try:
+            cls = ModelCfg.kind_class(str(model.get("kind")))
+        except ValueError as exc:
+            raise builder.error(("kind",), str(exc)) from None
+        model = builder.build(cls, model, ())
+    return obs_spec, model
 
-    def _check_exportable(self) -> None:
-        """rsl-rl's exporters feed the whole normalised input to the MLP; a trunk that drops
-        history frames would not match the first layer."""
-        if self.trunk.slices_history:
-            raise NotImplementedError("export with model.history_frames > 0 is not supported; "
-                                      "use the eager model")
+
+class FlatPolicy(nn.Module):
+    """A `StructuredModel` actor as rsl-rl exports policies: the deterministic action of the
+    flat observation `obs` [N, D] (the actor's groups concatenated in `obs_groups` order, raw:
+    the input normaliser is inside). A deep copy on the CPU in eval mode; `groups`, `dims` and
+    `history` describe the layout of `obs` (`detach.runs.export` writes them beside the file)."""
+
+    is_recurrent: bool = False
+
+    def __init__(self, model: StructuredModel, verbose: bool = False) -> None:
+        super().__init__()
+        if model.distribution is None:
+            raise ValueError("FlatPolicy: export the actor, not the critic")
+        self.model = copy.deepcopy(model).cpu().eval()
+        self.verbose = verbose
+        self.groups = tuple(model.obs_groups)
+        self.dims = tuple(model.layout.dim(g) for g in self.groups)
+        self.history = {g: model.layout.history_shape(g) for g in self.groups if g in ("self", "env")}
+        self.input_size = sum(self.dims)
+        self.num_actions = int(model.distribution.output_dim)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        groups = dict(zip(self.groups, torch.split(obs, list(self.dims), dim=-1)))
+        return self.model(groups)
+
+    def get_dummy_inputs(self) -> tuple[torch.Tensor]:
+        return (torch.zeros(2, self.input_size),)
+
+    @property
+    def input_names(self) -> list[str]:
+        return ["obs"]
+
+    @property
+    def output_names(self) -> list[str]:
+        return ["actions"]
+
+    @torch.jit.unused
+    def reset(self) -> None:
+        """No recurrent state between calls (CML's GRU reads the window in the input)."""

@@ -13,18 +13,23 @@ from pathlib import Path
 from typing import Sequence
 
 import torch
+import yaml
 
 from detach.config import load_task
+from detach.config_validate import to_plain
 from detach.config_schema import RunConfig
 from detach.envs.lh_env import make_env
 from detach.eval.episodes import run_evaluation
 from detach.eval.scene import scene_message
 from detach.models.factory import build_actor_critic
-from detach.run_contract import checkpoint_iteration, eval_file
-from detach.runs.folder import RunFolder, atomic_write_json
+from detach.run_contract import AGENT_PARAMS_FILE, checkpoint_iteration, eval_file
+from detach.runs.folder import RunFolder, atomic_write_json, atomic_write_text
 from detach.runs.mcap_log import RunLogWriter
+from detach.runs.provenance import write_provenance
 from detach.train.checkpoints import CheckpointError, check_model, load_module_weights, read_checkpoint
-from detach.train.setup import build_runner, default_action_std, load_initial_weights, prepare_assets, seed_everything
+from detach.train.setup import (
+    build_runner, default_action_std, load_initial_weights, prepare_assets, seed_everything, train_cfg_dict,
+)
 
 
 def train_and_evaluate(run: RunFolder, resume: bool, eval_tasks: Sequence[Path] = (),
@@ -37,7 +42,9 @@ def train_and_evaluate(run: RunFolder, resume: bool, eval_tasks: Sequence[Path] 
     log = RunLogWriter(run.log_path, append=resume,
                        metrics_until=checkpoint_iteration(checkpoint.name) if checkpoint else None)
     try:
+        write_provenance(run, device, resumed=resume)
         env, runner = build_runner(cfg, run.checkpoints, device, log)
+        write_agent_params(run, cfg, env)
         runner.model_name, runner.model_kind = cfg.model_name, cfg.model.kind
         runner.keep_last, runner.keep_every = cfg.train.keep_checkpoints.last, cfg.train.keep_checkpoints.every
         start = 0
@@ -56,6 +63,15 @@ def train_and_evaluate(run: RunFolder, resume: bool, eval_tasks: Sequence[Path] 
         evaluate_run(run, None, None, trials, device)
         for task in eval_tasks:
             evaluate_run(run, task, None, trials, device)
+
+
+def write_agent_params(run: RunFolder, cfg: RunConfig, env) -> Path:
+    """params/agent.yaml: the run's rsl-rl train config as plain YAML, so that stock rsl-rl
+    code loads its checkpoints (`OnPolicyRunner(env, cfg, None, device).load(path)` with
+    `detach.train.amp_ppo:AmpPPO` as the algorithm; docs/EXPORT.md)."""
+    path = run.path / AGENT_PARAMS_FILE
+    atomic_write_text(path, yaml.safe_dump(to_plain(train_cfg_dict(cfg, env)), sort_keys=False))
+    return path
 
 
 def eval_config(cfg: RunConfig, task_path: Path | None) -> RunConfig:

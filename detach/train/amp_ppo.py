@@ -39,6 +39,7 @@ from rsl_rl.algorithms import PPO
 from rsl_rl.utils.utils import reduce_gradients_in_buckets
 
 from detach.config_schema import AmpCfg
+from detach.config_validate import Builder
 from detach.models.rsl_rl_models import link_shared_trunk
 from detach.train.discriminator import AmpDiscriminator, ReplayBuffer
 
@@ -55,6 +56,8 @@ class AmpPPO(PPO):
         """amp: the AMP settings (None = no AMP); task_specific: condition the discriminator on
         the skill one-hot; amp_parts: feature indices of the AMP window per body part (CML's
         body-part discriminators; None = one whole-body discriminator)."""
+        if isinstance(amp, dict):  # a YAML train config (params/agent.yaml) read by stock rsl-rl code
+            amp = Builder({}, "train_cfg (algorithm.amp)").build(AmpCfg, amp, ())
         link_shared_trunk(actor, critic)  # before PPO lists the parameters for its optimiser
         super().__init__(actor, critic, storage, **ppo_kwargs)
         if ppo_kwargs.get("optimizer", "adam") == "adam":

@@ -13,12 +13,21 @@ their normalisers and optimiser, the AMP replay buffer (a sidecar file, newest c
 only) and the random-number states (Python, NumPy, torch, the environment's generator).
 What it does not: the simulation state of the environments (a resumed run starts fresh
 episodes) and the progress bar's running reward averages.
+
+Metrics carry rsl-rl's names (`metric_names`, docs/METRICS.md) and go to the run's log.mcap
+and, with `train.logger: tensorboard | wandb`, through rsl-rl's own writers
+(`rsl_rl.utils.logger.Logger`: TensorBoard's `SummaryWriter`, `WandbLogWriter`) into the run
+folder. As rsl-rl's `check_nan`, every environment step is checked (`train.check_for_nan`):
+a NaN in an observation group, the rewards, the dones or the policy's actions stops the run
+with `NonFiniteError` naming the iteration, the step and the environments (status `failed`).
 Loading never unpickles (`weights_only=True`; rsl-rl's own `load` would run a pickled
 `__reduce__`), and a file of another model is refused in one line.
 """
 
 from __future__ import annotations
 
+import math
+import os
 import signal
 import statistics
 import time
@@ -55,14 +64,61 @@ class StopRequested(Exception):
     """Raised inside the loop after SIGTERM/SIGINT once the checkpoint is written."""
 
 
+class NonFiniteError(RuntimeError):
+    """A NaN or infinity in what the environment returned or the policy produced (the run
+    stops before it reaches a checkpoint; the last checkpoint is the last good state)."""
+
+
+def metric_names(losses: dict[str, float]) -> dict[str, float]:
+    """AmpPPO's update dict under rsl-rl's names: losses `Loss/<name>` (discriminator terms
+    `Loss/amp/...`, DETACH's auxiliary terms `Loss/aux/...`), the mean reward per step of each
+    objective `Train/step_reward_<objective>`."""
+    return {(f"Train/step_{k}" if k.startswith("reward_") else f"Loss/{k}"): v for k, v in losses.items()}
+
+
+SUCCESS_PREFIX = "Episode_Success/"
+"""The environment's success fractions of the episodes that ended (`lh`, `<i>_<skill>`), shown
+in the progress bar."""
+
+
+def find_non_finite(it: int, step: int, **tensors: object) -> None:
+    """Raise NonFiniteError naming the first group holding a NaN/inf (rsl-rl's `check_nan`,
+    plus where: iteration, rollout step, environments). One device sync when all is finite."""
+    named = [t for value in tensors.values()
+             for t in (value.values() if hasattr(value, "values") else [value])
+             if torch.is_tensor(t) and t.is_floating_point()]
+    if not named or bool(torch.stack([torch.isfinite(t).all() for t in named]).all()):
+        return
+    for what, value in tensors.items():
+        items = value.items() if hasattr(value, "items") else [(None, value)]
+        for key, tensor in items:
+            if not torch.is_tensor(tensor) or not tensor.is_floating_point():
+                continue
+            bad = ~torch.isfinite(tensor)
+            if bad.any():
+                envs = bad.reshape(bad.shape[0], -1).any(dim=-1).nonzero().flatten().tolist() \
+                    if bad.dim() else []
+                name = f"observation group '{key}'" if key is not None else what
+                shown = ", ".join(map(str, envs[:8])) + (" ..." if len(envs) > 8 else "")
+                raise NonFiniteError(f"NaN/inf in the {name} at iteration {it}, step {step} of the rollout "
+                                     f"(envs {shown}; {len(envs)} of {bad.shape[0] if bad.dim() else 1}); "
+                                     f"the last checkpoint holds the last good weights")
+
+
 class DetachRunner(OnPolicyRunner):
     def __init__(self, env, train_cfg: dict, device: str = "cpu",
                  schedule: list[tuple[str, int]] | None = None,
                  checkpoint_dir: Path | None = None, log: MetricsSink | None = None,
                  on_stage: StageHook | None = None, on_iteration: IterationHook | None = None,
-                 progress: bool = True) -> None:
-        train_cfg = {**train_cfg, "logger": {"class_name": "detach.train.null_writer:NullWriter"}}
-        super().__init__(env, train_cfg, log_dir=None, device=device)
+                 progress: bool = True, log_dir: Path | None = None) -> None:
+        """`train_cfg["logger"]`: "none", "tensorboard" or rsl-rl's dict form
+        ({"class_name": "WandbLogWriter", "project_name": ...}); its writer writes into `log_dir`
+        (the run folder; None: no writer)."""
+        logger = train_cfg.get("logger", "none")
+        super().__init__(env, {**train_cfg, "logger": "tensorboard" if logger == "none" else logger},
+                         log_dir=None, device=device)
+        self.logger.log_dir = str(log_dir) if log_dir is not None and logger != "none" else None
+        self.logger.git_status_repos = []  # provenance.json records the code state
         self.schedule = schedule or [("ppo", 1)]
         self.checkpoint_dir = checkpoint_dir
         self.log = log
@@ -178,11 +234,16 @@ class DetachRunner(OnPolicyRunner):
                 self.env.episode_length_buf, high=int(self.env.max_episode_length))
         previous = {sig: signal.signal(sig, self._request_stop)
                     for sig in (signal.SIGTERM, signal.SIGINT)}
+        if self.logger.log_dir is not None and self.logger.writer is None:
+            if isinstance(self.cfg["logger"], dict):  # W&B: its files in the run folder too
+                os.environ.setdefault("WANDB_DIR", self.logger.log_dir)
+            self.logger.init_logging_writer()
         try:
             self._loop(start, num_learning_iterations)
         finally:
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
+            self.close_writer()
         if self._stop_signal is not None:  # arrived after the last iteration's check
             raise StopRequested(signal.Signals(self._stop_signal).name)
 
@@ -211,9 +272,14 @@ class DetachRunner(OnPolicyRunner):
             t0 = time.time()
             episode_logs: dict[str, list[float]] = {}
             with torch.inference_mode():
-                for _ in range(self.cfg["num_steps_per_env"]):
+                check = self.cfg.get("check_for_nan", True)
+                for step in range(self.cfg["num_steps_per_env"]):
                     actions = self.alg.act(obs)
+                    if check:
+                        find_non_finite(it, step, actions=actions)
                     obs, rewards, dones, extras = self.env.step(actions.to(self.env.device))
+                    if check:
+                        find_non_finite(it, step, observations=obs, rewards=rewards, dones=dones.float())
                     obs, rewards, dones = obs.to(self.device), rewards.to(self.device), dones.to(self.device)
                     self.alg.process_env_step(obs, rewards, dones, extras)
                     reward_sum += rewards.reshape(-1)
@@ -234,38 +300,67 @@ class DetachRunner(OnPolicyRunner):
             learn_time = time.time() - t1
             self.completed_iteration = it
             steps = self.cfg["num_steps_per_env"] * self.env.num_envs
-            metrics = {f"loss/{k}": v for k, v in losses.items()}
-            metrics.update({k if "/" in k else f"episode/{k}": statistics.fmean(v)
+            metrics = metric_names(losses)
+            if self.cfg.get("check_for_nan", True):
+                bad = [k for k, v in metrics.items() if not math.isfinite(v)]
+                if bad:
+                    raise NonFiniteError(f"{bad[0]} is {metrics[bad[0]]} after the update of iteration {it}"
+                                         f"{f' (and {len(bad) - 1} more)' if len(bad) > 1 else ''}; "
+                                         f"the last checkpoint holds the last good weights")
+            metrics.update({k if "/" in k else f"Episode/{k}": statistics.fmean(v)  # rsl-rl's Logger
                             for k, v in episode_logs.items() if v})
-            metrics["fps"] = steps / max(collect_time + learn_time, 1e-9)
-            metrics["time/collect"] = collect_time
-            metrics["time/learn"] = learn_time
-            metrics["learning_rate"] = float(self.alg.learning_rate)
-            metrics["policy/std"] = float(self.alg.get_policy().output_std.detach().mean())
+            metrics["Perf/total_fps"] = steps / max(collect_time + learn_time, 1e-9)
+            metrics["Perf/collection_time"] = collect_time
+            metrics["Perf/learning_time"] = learn_time
+            metrics["Loss/learning_rate"] = float(self.alg.learning_rate)
+            metrics["Policy/mean_std"] = float(self.alg.get_policy().output_std.detach().mean())
             if rewards_buf:
-                metrics["reward/mean"] = statistics.fmean(rewards_buf)
-                metrics["episode/length"] = statistics.fmean(lengths_buf)
+                metrics["Train/mean_reward"] = statistics.fmean(rewards_buf)
+                metrics["Train/mean_episode_length"] = statistics.fmean(lengths_buf)
             if self.log is not None:
                 self.log.log_metrics(it, metrics, stage=stage or "")
+            self.write_metrics(it, metrics)
             bar.set_postfix(self._postfix(stage, metrics), refresh=False)
             if self.on_iteration is not None:
                 self.on_iteration(it, metrics)
             last = it == end - 1
             if (it + 1) % self.cfg["save_interval"] == 0 or last or self._stop_signal:
-                self.save_checkpoint()
+                saved = self.save_checkpoint()
+                if saved is not None:
+                    self.logger.save_model(str(saved), it)  # W&B uploads it, as rsl-rl's learn does
             if self._stop_signal is not None:
                 bar.close()
                 signum, self._stop_signal = self._stop_signal, None
                 raise StopRequested(signal.Signals(signum).name)
         bar.close()
 
+    # ------------------------------------------------------------------ logging sinks
+    def write_metrics(self, it: int, metrics: dict[str, float]) -> None:
+        """The iteration's metrics through rsl-rl's writer (TensorBoard, W&B), if any."""
+        writer = self.logger.writer
+        if writer is None:
+            return
+        for key, value in metrics.items():
+            writer.add_scalar(key, value, it)
+
+    def close_writer(self) -> None:
+        """Flush and close the writer (W&B: finish the run)."""
+        writer, self.logger.writer = self.logger.writer, None
+        if writer is None:
+            return
+        if hasattr(writer, "stop"):
+            writer.stop()
+        if hasattr(writer, "close"):
+            writer.close()
+
     @staticmethod
     def _postfix(stage: str | None, metrics: dict[str, float]) -> dict[str, str]:
-        post = {"stage": stage or "", "fps": f"{metrics['fps']:.0f}"}
-        if "reward/mean" in metrics:
-            post["reward"] = f"{metrics['reward/mean']:.2f}"
+        """stage, fps, mean episode reward and the success fractions (`Episode_Success/`)."""
+        post = {"stage": stage or "", "fps": f"{metrics['Perf/total_fps']:.0f}"}
+        if "Train/mean_reward" in metrics:
+            post["reward"] = f"{metrics['Train/mean_reward']:.2f}"
         for key, value in metrics.items():
-            if key.startswith("success/"):
-                post[key.split("/", 1)[1]] = f"{value:.2f}"
+            if key.startswith(SUCCESS_PREFIX):
+                post[f"success_{key.removeprefix(SUCCESS_PREFIX)}"] = f"{value:.2f}"
         return post
 

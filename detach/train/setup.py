@@ -47,6 +47,13 @@ def default_action_std(cfg: RunConfig) -> float:
     return character_class(cfg.env.character).action_std
 
 
+def logger_cfg(cfg: RunConfig) -> str | dict:
+    """`train.logger` as rsl-rl's train_cfg["logger"] ("none" is ours: no writer)."""
+    if cfg.train.logger == "wandb":
+        return {"class_name": "rsl_rl.utils.wandb_log_writer:WandbLogWriter", "project_name": cfg.train.wandb_project}
+    return cfg.train.logger
+
+
 def train_cfg_dict(cfg: RunConfig, env: LHEnv) -> dict:
     """rsl-rl-lib's train_cfg for this run (algorithm = our AmpPPO, typed configs inside)."""
     t, amp = cfg.train, cfg.train.amp
@@ -54,6 +61,7 @@ def train_cfg_dict(cfg: RunConfig, env: LHEnv) -> dict:
     parts = amp_part_indices(amp.body_parts, cfg.env.amp_obs_steps) if amp.body_parts else None
     return {
         "num_steps_per_env": t.num_steps_per_env, "save_interval": t.save_interval,
+        "check_for_nan": t.check_for_nan, "logger": logger_cfg(cfg),
         "obs_groups": {k: list(v) for k, v in DEFAULT_OBS_GROUPS.items()},
         "algorithm": {"class_name": "detach.train.amp_ppo:AmpPPO",
                       "num_learning_epochs": t.num_learning_epochs,
@@ -102,7 +110,8 @@ def build_runner(cfg: RunConfig, checkpoint_dir: Path | None, device: str, log: 
     stages = stage_lengths(cfg.train.stages, cfg.train.max_iterations) \
         if cfg.model.staged else [("ppo", cfg.train.max_iterations)]
     runner = DetachRunner(env, train_cfg_dict(cfg, env), device=device, schedule=stages,
-                          checkpoint_dir=checkpoint_dir, log=log, progress=progress)
+                          checkpoint_dir=checkpoint_dir, log=log, progress=progress,
+                          log_dir=checkpoint_dir.parent if checkpoint_dir is not None else None)
     alg = runner.alg
     if alg.amp_enabled:
         alg.reference_sampler = amp_reference_sampler(

@@ -1,0 +1,158 @@
+"""`detach-run export RUN_DIR`: a run's policy as ONNX or TorchScript, checked against torch.
+
+`export_run` rebuilds the run's actor from config.yaml and a checkpoint, exports it through
+the models' rsl-rl API (`as_onnx` / `as_jit`: `detach.models.rsl_rl_models.FlatPolicy`) and
+checks the exported file on observations of the run's own environment (and the same
+observations scaled, to leave the normaliser's well-trodden range) against the eager actor:
+onnxruntime for ONNX, `torch.jit.load` for TorchScript. Beside the file, `<name>.json` says how
+to feed it: one input `obs` [N, D], the actor's groups concatenated in order, the history
+groups time-major with the oldest frame first, raw (the input normaliser is in the graph);
+one output `actions` [N, num_actions], the policy's mean, which the environment clamps to
+[-1, 1] before its character maps them to controls.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from detach.config import ConfigError
+from detach.envs.lh_env import make_env
+from detach.models.factory import build_actor_critic
+from detach.models.rsl_rl_models import FlatPolicy
+from detach.run_contract import EXPORT_DIR, EXPORT_FORMATS, checkpoint_file, checkpoint_iteration, export_file
+from detach.runs.folder import RunFolder, atomic_write_json
+from detach.train.checkpoints import check_model, load_module_weights, read_checkpoint
+from detach.train.setup import default_action_std, prepare_assets
+
+ONNX_OPSET = 18
+TOLERANCE = 1e-4
+"""Largest |exported - eager| action accepted (float32 kernels differ in summation order)."""
+
+
+@dataclass
+class Exported:
+    path: Path
+    layout: Path
+    iteration: int
+    max_abs_diff: float
+    """Over the check observations, between the exported file and the eager actor."""
+
+    def __fspath__(self) -> str:
+        return str(self.path)
+
+    def __str__(self) -> str:
+        return (f"{self.path} (input layout in {self.layout.name}; max |exported - torch| = "
+                f"{self.max_abs_diff:.2g} over the check observations)")
+
+
+def export_run(run_dir: Path, checkpoint: int | None = None, fmt: str = "onnx",
+               out: Path | None = None, *, output: Path | None = None) -> Exported:
+    """Export checkpoint `checkpoint` (an iteration; None: the newest readable) of a run as
+    `fmt` (onnx | jit) to `out` (default <run>/exported/policy_<iteration>.onnx|.pt). ConfigError
+    for a missing run, checkpoint or extra; RuntimeError when the file disagrees with torch."""
+    out = out if out is not None else output
+    if fmt not in EXPORT_FORMATS:
+        raise ConfigError(f"--format: expected one of {', '.join(EXPORT_FORMATS)}, found '{fmt}'")
+    run = RunFolder(Path(run_dir))
+    if not run.config_path.exists():
+        raise ConfigError("not a run folder (no config.yaml)", str(run_dir))
+    if checkpoint is None:
+        path = run.usable_checkpoint()
+        if path is None:
+            raise ConfigError("run has no readable checkpoint to export", str(run_dir))
+    else:
+        path = run.checkpoints / checkpoint_file(checkpoint)
+        if not path.exists():
+            have = ", ".join(str(checkpoint_iteration(p.name)) for p in reversed(run.checkpoint_files()))
+            raise ConfigError(f"--checkpoint {checkpoint}: no {path.name} (the run has {have or 'none'})",
+                              str(run.checkpoints))
+    cfg = run.config()
+    state = read_checkpoint(path)
+    check_model(state, path, cfg.model_name, cfg.model.kind)
+    iteration = int(state.get("iter", checkpoint_iteration(path.name) or 0))
+    prepare_assets(cfg.task)
+    env = make_env(cfg, num_envs=4, device="cpu", eval_mode=True)
+    actor, _critic = build_actor_critic(cfg.model, env.obs_spec, env.get_observations(),
+                                        num_actions=env.num_actions, default_std=default_action_std(cfg))
+    load_module_weights(actor, state["actor_state_dict"], path, "actor")
+    actor.eval()
+    policy = FlatPolicy(actor)
+    target = Path(out) if out is not None else run.path / EXPORT_DIR / export_file(iteration, fmt)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    obs = _check_observations(env, actor)
+    if fmt == "onnx":
+        _write_onnx(actor, target)
+        run_file = _onnx_runner(target)
+    else:
+        actor.as_jit().save(str(target))
+        loaded = torch.jit.load(str(target), map_location="cpu")
+        run_file = lambda x: loaded(torch.from_numpy(x)).detach().numpy()  # noqa: E731
+    flat = torch.cat([obs[g] for g in policy.groups], dim=-1)
+    with torch.no_grad():
+        eager = actor(obs).numpy()
+    diff = float(abs(run_file(flat.numpy()) - eager).max())
+    if not diff <= TOLERANCE:
+        raise RuntimeError(f"the exported policy differs from the eager one by {diff:.3g} (> {TOLERANCE})")
+    layout = target.with_suffix(".json")
+    atomic_write_json(layout, _layout(policy, cfg, iteration, path, fmt, target, diff))
+    return Exported(target, layout, iteration, diff)
+
+
+def _check_observations(env, actor) -> dict[str, torch.Tensor]:
+    """A few steps of the run's environment under the policy, and the same observations
+    scaled by 3 (inputs the normaliser maps far from 0), as one batch of named groups."""
+    batches = []
+    obs = env.get_observations()
+    with torch.no_grad():
+        for _ in range(3):
+            batches.append({g: obs[g].clone() for g in actor.obs_groups})
+            obs, _r, _d, _e = env.step(actor(obs))
+    groups = {g: torch.cat([b[g] for b in batches]) for g in actor.obs_groups}
+    scaled = {g: v * (1.0 if g == "task" else 3.0) for g, v in groups.items()}  # task stays one-hot
+    return {g: torch.cat([groups[g], scaled[g]]).float() for g in actor.obs_groups}
+
+
+def _write_onnx(actor, target: Path) -> None:
+    try:
+        import onnx  # noqa: F401  (torch's exporter needs it)
+    except ImportError:
+        raise ConfigError("--format onnx needs onnx (a dependency of rsl-rl-lib): pip install 'detach[export]'") \
+            from None
+    policy = actor.as_onnx()
+    with torch.no_grad():
+        torch.onnx.export(policy, policy.get_dummy_inputs(), str(target), dynamo=False,
+                          export_params=True, opset_version=ONNX_OPSET, input_names=policy.input_names,
+                          output_names=policy.output_names,
+                          dynamic_axes={"obs": {0: "batch"}, "actions": {0: "batch"}})
+
+
+def _onnx_runner(path: Path):
+    try:
+        import onnxruntime
+    except ImportError:
+        raise ConfigError("checking an ONNX export needs onnxruntime: pip install 'detach[export]'") from None
+    session = onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    return lambda x: session.run(["actions"], {"obs": x.astype("float32")})[0]
+
+
+def _layout(policy: FlatPolicy, cfg, iteration: int, checkpoint: Path, fmt: str, target: Path,
+            diff: float) -> dict:
+    start, groups = 0, []
+    for name, width in zip(policy.groups, policy.dims):
+        entry = {"name": name, "start": start, "width": width}
+        if name in policy.history:
+            steps, dim = policy.history[name]
+            entry["history"] = {"steps": steps, "frame": dim, "order": "time-major, oldest frame first"}
+        groups.append(entry)
+        start += width
+    return {"format": fmt, "file": target.name, "model": cfg.model_name, "kind": cfg.model.kind,
+            "task": cfg.task_name, "character": cfg.env.character, "iteration": iteration,
+            "checkpoint": str(checkpoint), "input": {"name": "obs", "width": policy.input_size, "groups": groups,
+                                                     "normalised": "inside the graph (feed raw observations)"},
+            "output": {"name": "actions", "width": policy.num_actions,
+                       "meaning": "the policy's mean action; the environment clamps it to [-1, 1]"},
+            "check": {"max_abs_diff": diff, "tolerance": TOLERANCE}}

@@ -1,0 +1,111 @@
+"""provenance.json: what code on what machine produced a run.
+
+One record per start of training (the first, then one per resume): UTC time, the command
+line and working directory, Python, the platform and host, the versions of detach and of
+every installed package it depends on, the torch device (GPU name and CUDA version on a GPU,
+torch threads on the CPU), and the git state of the source tree detach was imported from:
+commit, branch, whether it is dirty, the diff against the commit (`git diff HEAD`, cut at
+`MAX_DIFF` characters) and the untracked files (names only). An installed wheel outside a
+git work tree records `git: null`.
+"""
+
+from __future__ import annotations
+
+import datetime
+import os
+import platform
+import re
+import subprocess
+import sys
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import torch
+
+import detach
+from detach.run_contract import PROVENANCE_FILE
+from detach.runs.folder import RunFolder, atomic_write_json, read_json
+
+MAX_DIFF = 500_000
+"""Characters of `git diff HEAD` kept (a larger diff is cut and says so)."""
+KEY_PACKAGES = ("detach", "torch", "mujoco", "rsl-rl-lib", "tensordict", "numpy")
+
+
+def _git(args: list[str], cwd: Path) -> str | None:
+    try:
+        proc = subprocess.run(["git", *args], cwd=cwd, capture_output=True, text=True, timeout=30)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    return proc.stdout if proc.returncode == 0 else None
+
+
+def git_state(source: Path | None = None) -> dict[str, Any] | None:
+    """Commit, branch, dirty flag, diff and untracked files of the work tree holding `source`
+    (default: detach's own source); None outside a git work tree."""
+    source = source or Path(detach.__file__).resolve().parent
+    top = _git(["rev-parse", "--show-toplevel"], source)
+    if top is None:
+        return None
+    root = Path(top.strip())
+    commit = (_git(["rev-parse", "HEAD"], root) or "").strip() or None
+    branch = (_git(["rev-parse", "--abbrev-ref", "HEAD"], root) or "").strip() or None
+    diff = _git(["diff", "HEAD", "--no-ext-diff", "--no-color"], root) or ""
+    untracked = [line for line in (_git(["ls-files", "--others", "--exclude-standard"], root) or "").splitlines()
+                 if line]
+    truncated = len(diff) > MAX_DIFF
+    return {"root": str(root), "commit": commit, "branch": branch, "dirty": bool(diff or untracked),
+            "diff": diff[:MAX_DIFF] + (f"\n... cut at {MAX_DIFF} of {len(diff)} characters\n" if truncated else ""),
+            "untracked": untracked}
+
+
+def package_versions() -> dict[str, str]:
+    """detach and every package it requires (its extras too) that is installed, by name."""
+    names = list(KEY_PACKAGES)
+    try:
+        for req in metadata.requires("detach") or []:
+            name = re.split(r"[\s;<>=!~\[(]", req, maxsplit=1)[0]
+            if name and name not in names:
+                names.append(name)
+    except metadata.PackageNotFoundError:
+        pass
+    versions = {}
+    for name in names:
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            continue
+    return dict(sorted(versions.items(), key=lambda kv: kv[0].lower()))
+
+
+def device_info(device: str) -> dict[str, Any]:
+    info: dict[str, Any] = {"device": device, "torch_threads": torch.get_num_threads(),
+                            "cpu_count": os.cpu_count()}
+    if device.startswith("cuda") and torch.cuda.is_available():
+        index = torch.device(device).index or 0
+        info.update(gpu=torch.cuda.get_device_name(index), cuda=torch.version.cuda,
+                    gpu_count=torch.cuda.device_count())
+    return info
+
+
+def provenance_record(device: str, resumed: bool = False) -> dict[str, Any]:
+    return {"time": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "resumed": resumed, "command": list(sys.argv), "cwd": os.getcwd(),
+            "python": sys.version.split()[0], "python_executable": sys.executable,
+            "platform": platform.platform(), "host": platform.node(),
+            "packages": package_versions(), "device": device_info(device), "git": git_state()}
+
+
+def write_provenance(run: RunFolder, device: str, resumed: bool = False) -> Path:
+    """Add this start's record to the run's provenance.json: `{"runs": [first, resume, ...]}`."""
+    path = run.path / PROVENANCE_FILE
+    records: list[dict[str, Any]] = []
+    if resumed and path.exists():
+        try:
+            old = read_json(path)
+            records = list(old.get("runs", [])) if isinstance(old, dict) else []
+        except (OSError, ValueError):
+            records = []
+    records.append(provenance_record(device, resumed))
+    atomic_write_json(path, {"runs": records})
+    return path
