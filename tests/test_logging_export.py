@@ -52,7 +52,7 @@ def test_tensorboard_mcap_and_progress_bar_share_rsl_rl_names_and_the_run_record
     metrics = read_metrics(run.log_path)
     keys = {k for m in metrics for k in m if k not in ("iteration", "stage")}
     assert keys and all(k.startswith(PREFIXES) for k in keys), sorted(k for k in keys if not k.startswith(PREFIXES))
-    for key in ("Loss/surrogate", "Loss/value_function", "Loss/learning_rate", "Perf/total_fps",
+    for key in ("Loss/surrogate", "Loss/value", "Loss/entropy", "Loss/learning_rate", "Perf/total_fps",
                 "Train/mean_reward", "Train/mean_episode_length", "Policy/mean_std", "Episode_Success/lh"):
         assert key in keys, key
     events = list(run.path.glob("events.out.tfevents.*"))

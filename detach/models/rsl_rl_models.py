@@ -503,6 +503,9 @@ class FlatPolicy(nn.Module):
         super().__init__()
         if model.distribution is None:
             raise ValueError("FlatPolicy: export the actor, not the critic")
+        for cache in ("_latent_cache", "_forward_cache"):  # a training pass's graph cannot be copied
+            if cache in model.__dict__:
+                setattr(model, cache, None)
         self.model = copy.deepcopy(model).cpu().eval()
         self.verbose = verbose
         self.groups = tuple(model.obs_groups)
@@ -510,6 +513,7 @@ class FlatPolicy(nn.Module):
         self.history = {g: model.layout.history_shape(g) for g in self.groups if g in ("self", "env")}
         self.input_size = sum(self.dims)
         self.num_actions = int(model.distribution.output_dim)
+        self.eval()
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         groups = dict(zip(self.groups, torch.split(obs, list(self.dims), dim=-1)))

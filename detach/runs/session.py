@@ -70,7 +70,10 @@ def write_agent_params(run: RunFolder, cfg: RunConfig, env) -> Path:
     code loads its checkpoints (`OnPolicyRunner(env, cfg, None, device).load(path)` with
     `detach.train.amp_ppo:AmpPPO` as the algorithm; docs/EXPORT.md)."""
     path = run.path / AGENT_PARAMS_FILE
-    atomic_write_text(path, yaml.safe_dump(to_plain(train_cfg_dict(cfg, env)), sort_keys=False))
+    params = train_cfg_dict(cfg, env)
+    if params["logger"] == "none":  # ours; rsl-rl's own default, used only when it gets a log_dir
+        params["logger"] = "tensorboard"
+    atomic_write_text(path, yaml.safe_dump(to_plain(params), sort_keys=False))
     return path
 
 

@@ -84,13 +84,12 @@ in the progress bar."""
 def find_non_finite(it: int, step: int, **tensors: object) -> None:
     """Raise NonFiniteError naming the first group holding a NaN/inf (rsl-rl's `check_nan`,
     plus where: iteration, rollout step, environments). One device sync when all is finite."""
-    named = [t for value in tensors.values()
-             for t in (value.values() if hasattr(value, "values") else [value])
-             if torch.is_tensor(t) and t.is_floating_point()]
+    groups = {what: ([(None, value)] if torch.is_tensor(value) else list(value.items()))  # a TensorDict
+              for what, value in tensors.items()}
+    named = [t for items in groups.values() for _key, t in items if torch.is_tensor(t) and t.is_floating_point()]
     if not named or bool(torch.stack([torch.isfinite(t).all() for t in named]).all()):
         return
-    for what, value in tensors.items():
-        items = value.items() if hasattr(value, "items") else [(None, value)]
+    for what, items in groups.items():
         for key, tensor in items:
             if not torch.is_tensor(tensor) or not tensor.is_floating_point():
                 continue
@@ -106,6 +105,7 @@ def find_non_finite(it: int, step: int, **tensors: object) -> None:
 
 
 class DetachRunner(OnPolicyRunner):
+
     def __init__(self, env, train_cfg: dict, device: str = "cpu",
                  schedule: list[tuple[str, int]] | None = None,
                  checkpoint_dir: Path | None = None, log: MetricsSink | None = None,
