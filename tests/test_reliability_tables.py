@@ -1,0 +1,84 @@
+"""Tables and the run list from imperfect folders: a sweep cell counts once (its newest
+evaluation), impossible or malformed eval.json files are left out with a line saying which,
+and one broken file never stops `detach-run list` (docs/RELIABILITY.md)."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from detach import cli
+from detach.config import resolve
+from detach.runs.folder import RunFolder, find_runs
+from detach.runs.tables_cli import collect_evals
+from tests.test_runner_cli import FOLLOW
+
+
+def _eval(rate: float, trials: int = 10) -> dict[str, Any]:
+    """A minimal eval.json of the follow task (rates over `trials` trials)."""
+    return {"task": "follow", "trained_on": "follow", "model": "mlp", "seed": 0, "trials": trials,
+            "plan": ["follow"],
+            "subtasks": [{"index": 0, "skill": "follow", "rate": rate, "ci": [0.0, 1.0], "n": trials}],
+            "lh_success": {"rate": rate, "ci": [0.0, 1.0], "n": trials}, "sgr": 0.0}
+
+
+def _run(parent: Path, data: Any, cell: str | None = None, written: float | None = None) -> RunFolder:
+    run = RunFolder.create(parent, resolve(FOLLOW, "mlp"))
+    run.set_state("finished", cell=cell)
+    run.eval_path.write_text(data if isinstance(data, str) else json.dumps(data))
+    if written is not None:
+        os.utime(run.eval_path, (written, written))
+    return run
+
+
+def test_a_sweep_cell_evaluated_twice_counts_once_the_newest(tmp_path: Path,
+                                                            capsys: pytest.CaptureFixture[str]) -> None:
+    cell = "mini/follow/mlp/s0"
+    _run(tmp_path, _eval(0.0), cell, written=1_000_000)  # the first sweep's copy of the cell
+    _run(tmp_path, _eval(1.0), cell, written=2_000_000)  # a second sweep over the same file
+    _run(tmp_path, _eval(0.5))  # a run outside any sweep is its own entry
+    evals = collect_evals(find_runs(tmp_path))
+    assert sorted(e.lh_success.rate for e in evals) == [0.5, 1.0]
+    assert sum(e.trials for e in evals) == 20, "n is not doubled"
+    assert "1 older evaluation(s) of a sweep cell left out" in capsys.readouterr().err
+    assert cli.main(["table", str(tmp_path), "--kind", "skills", "--task", "follow"]) == 0
+    assert "1 older evaluation(s) of a sweep cell left out" in capsys.readouterr().err
+
+
+BAD_EVALS = {
+    "nan rate": json.dumps(_eval(0.5)).replace('"rate": 0.5', '"rate": NaN', 1),
+    "rate as text": json.dumps(_eval(0.5)).replace('"rate": 0.5', '"rate": "high"', 1),
+    "subtasks null": json.dumps({**_eval(0.5), "subtasks": None}),
+    "rate above one": json.dumps(_eval(1.5)),
+    "zero trials": json.dumps(_eval(0.5, trials=0)),
+    "interval upside down": json.dumps(_eval(0.5)).replace("[0.0, 1.0]", "[0.9, 0.1]", 1),
+    "not json": "{rate: high",
+    "nested too deeply": "[" * 100_000 + "]" * 100_000,
+    "a list": "[1, 2, 3]",
+    "binary": "\udcff\udcfe",
+}
+
+
+@pytest.mark.parametrize("name", sorted(BAD_EVALS))
+def test_a_bad_eval_json_is_left_out_with_a_line_and_the_rest_still_counts(
+        name: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    good = _run(tmp_path, _eval(0.25))
+    text = BAD_EVALS[name]
+    bad = RunFolder.create(tmp_path, resolve(FOLLOW, "mlp"))
+    bad.set_state("finished")
+    bad.eval_path.write_bytes(text.encode("utf-8", "surrogateescape"))
+    evals = collect_evals(find_runs(tmp_path))
+    assert [e.lh_success.rate for e in evals] == [0.25]
+    err = capsys.readouterr().err
+    assert f"skipped {bad.eval_path}" in err and len(err.strip().splitlines()) == 1
+    assert cli.main(["table", str(tmp_path), "--kind", "skills", "--task", "follow"]) == 0
+    capsys.readouterr()
+    assert cli.main(["list", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    rows = {line.split()[0]: line.split() for line in out.splitlines()[1:] if not line.startswith(" ")}
+    assert rows[good.path.name][-1] == "0.25" and rows[bad.path.name][-1] == "invalid"
+    assert f"{bad.path.name}: eval.json ignored:" in out
