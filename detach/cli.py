@@ -117,9 +117,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--models", default=None, metavar="A,B",
                         help="with --sweep: run only these of the sweep's models (their cells are "
                              "the same as in the whole sweep, so a later full run skips them)")
-    parser.add_argument("--launcher", choices=["local", "ray"], default="local",
-                        help="with --sweep: a local worker pool, or Ray tasks (the cluster "
-                             "of RAY_ADDRESS, else a local Ray); needs the [ray] extra")
+    parser.add_argument("--launcher", choices=["local", "ray", "slurm"], default="local",
+                        help="with --sweep: a local worker pool, Ray tasks (the cluster of "
+                             "RAY_ADDRESS, else a local Ray; the [ray] extra) or SLURM jobs through "
+                             "submitit (the [slurm] extra; DETACH_SUBMITIT holds the job parameters "
+                             "as JSON, docs/PROTOCOL.md)")
     parser.add_argument("--cell", help=argparse.SUPPRESS)
     return parser
 

@@ -29,12 +29,13 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 import time
 from collections import deque
 from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Literal, Sequence
+from typing import BinaryIO, Literal, Sequence
 
 from detach.config import load_merged
 from detach.config_validate import Builder
@@ -279,9 +280,24 @@ def _lock_path(out: Path, name: str) -> Path:
 # ------------------------------------------------------------------------------- running
 def _run_command(cmd: list[str], cwd: str, env: dict[str, str] | None = None) -> tuple[int, str]:
     """(exit code, the last lines of stderr)."""
-    proc = subprocess.run(cmd, cwd=cwd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    tail = "\n".join(proc.stderr.strip().splitlines()[-5:])
-    return proc.returncode, tail
+    with tempfile.TemporaryFile("w+b") as err:  # a file, not a pipe: hours of progress bar stay on disk
+        proc = subprocess.run(cmd, cwd=cwd, env=env, stdout=subprocess.DEVNULL, stderr=err)
+        return proc.returncode, stderr_tail(err)
+
+
+TAIL_LINES = 15
+"""Lines of a failed cell's stderr that the sweep prints."""
+
+
+def stderr_tail(err: BinaryIO, lines: int = TAIL_LINES, max_bytes: int = 64 * 1024) -> str:
+    """The last `lines` lines of a stderr file, each line as a terminal would show it (a
+    progress bar's carriage returns keep only its last state)."""
+    err.seek(0, os.SEEK_END)
+    size = err.tell()
+    err.seek(max(0, size - max_bytes))
+    text = err.read().decode("utf-8", "replace")
+    shown = [line.rstrip("\r").rsplit("\r", 1)[-1].rstrip() for line in text.split("\n")]
+    return "\n".join([line for line in shown if line][-lines:])
 
 
 def _cell_env(jobs: int) -> dict[str, str]:
@@ -330,16 +346,92 @@ class _RayPool:
         return future
 
     def resolve(self, futures: set[Future]) -> None:
-        """Complete the futures whose Ray tasks finished (as they finish: `ray.wait`)."""
+        """Complete the futures whose Ray tasks finished, as they finish (`ray.wait` for the
+        first, then every other one already done); a task that died is a failed cell."""
         pending = {f.ref: f for f in futures if not f.done()}  # type: ignore[attr-defined]
         if not pending:
             return
-        ready, _ = self.ray.wait(list(pending), num_returns=1, timeout=1.0)
+        ready, rest = self.ray.wait(list(pending), num_returns=1, timeout=1.0)
+        if ready and rest:
+            more, _ = self.ray.wait(rest, num_returns=len(rest), timeout=0)
+            ready = [*ready, *more]
         for ref in ready:
-            pending[ref].set_result(self.ray.get(ref))
+            try:
+                result = self.ray.get(ref)
+            except Exception as exc:  # noqa: BLE001 - the worker died or the task raised
+                result = (1, f"Ray task failed: {type(exc).__name__}: {exc}")
+            pending[ref].set_result(result)
 
     def close(self) -> None:
         """Ray stays up for other sweeps of this process."""
+
+
+class _SubmititPool:
+    """Each cell's commands as one SLURM job through submitit (the [slurm] extra). The
+    executor is submitit's `AutoExecutor` (SLURM where `sbatch` exists, else local processes);
+    `DETACH_SUBMITIT_CLUSTER` forces one of submitit's clusters (`slurm`, `local`, `debug`) and
+    `DETACH_SUBMITIT` holds the executor's parameters as JSON (e.g. {"slurm_partition": "gpu",
+    "timeout_min": 1440, "gpus_per_node": 1, "cpus_per_task": 16}). Job logs go to
+    <runs>/.submitit/. As with Ray, the runs folder and the project must be on every node."""
+
+    def __init__(self, jobs: int, out: Path) -> None:
+        try:
+            import submitit
+        except ImportError:
+            raise ConfigError("--launcher slurm needs submitit: pip install 'detach[slurm]'") from None
+        try:
+            params = json.loads(os.environ.get("DETACH_SUBMITIT", "{}") or "{}")
+        except json.JSONDecodeError as exc:
+            raise ConfigError(f"DETACH_SUBMITIT: not JSON ({exc})") from None
+        if not isinstance(params, dict):
+            raise ConfigError("DETACH_SUBMITIT: expected a JSON object of executor parameters")
+        self.folder = out / ".submitit"
+        self.executor = submitit.AutoExecutor(folder=self.folder,
+                                              cluster=os.environ.get("DETACH_SUBMITIT_CLUSTER") or None)
+        params.setdefault("timeout_min", 7 * 24 * 60)
+        params.setdefault("name", "detach-sweep")
+        try:
+            self.executor.update_parameters(**params)
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f"DETACH_SUBMITIT: {exc}") from None
+        self.jobs = jobs
+        self.submitted: list = []
+
+    def submit(self, work: "_Work") -> Future:
+        """The cell's commands, decided here, run as one job (no cell lock, as with Ray)."""
+        future: Future = Future()
+        future.job = self.executor.submit(_run_commands, work.commands(), work.cwd)  # type: ignore[attr-defined]
+        self.submitted.append(future.job)  # type: ignore[attr-defined]
+        return future
+
+    def resolve(self, futures: set[Future]) -> None:
+        """Complete the futures whose jobs ended (polled; a job that died is a failed cell
+        with the tail of its log)."""
+        ended = False
+        for future in futures:
+            job = future.job  # type: ignore[attr-defined]
+            if future.done() or not job.done():
+                continue
+            ended = True
+            try:
+                future.set_result(job.result())
+            except Exception as exc:  # noqa: BLE001 - the job failed or was cancelled
+                log = (job.stderr() or "") if hasattr(job, "stderr") else ""
+                lines = [line for line in log.splitlines() if line.strip()][-TAIL_LINES:]
+                future.set_result((1, "\n".join([f"job {job.job_id} failed: {type(exc).__name__}", *lines])))
+        if not ended:
+            time.sleep(1.0)
+
+    def close(self) -> None:
+        """Jobs that still run are the scheduler's (a stopped sweep cancels them first)."""
+
+    def cancel(self) -> None:
+        """Cancel the jobs of this sweep that have not ended (Ctrl-C / SIGTERM of the sweep:
+        SLURM sends them SIGTERM, and each run checkpoints and ends `interrupted`)."""
+        for job in self.submitted:
+            if not job.done():
+                with contextlib.suppress(Exception):
+                    job.cancel(check=False)
 
 
 def _run_commands(cmds: list[list[str]], cwd: str, env: dict[str, str] | None = None) -> tuple[int, str]:
@@ -376,7 +468,18 @@ def _eta(done: int, total: int, started: float) -> str:
     if done == 0:
         return "?"
     left = (time.monotonic() - started) / done * (total - done)
-    return f"{left / 60:.0f} min" if left >= 60 else f"{left:.0f} s"
+    return _duration(left)
+
+
+def _duration(seconds: float) -> str:
+    if seconds >= 3600:
+        return f"{seconds / 3600:.1f} h"
+    return f"{seconds / 60:.0f} min" if seconds >= 60 else f"{seconds:.0f} s"
+
+
+def _progress(done: int, total: int, started: float) -> str:
+    """'elapsed 12 min, ETA 1.5 h' (the ETA from the mean time per cell ended so far)."""
+    return f"elapsed {_duration(time.monotonic() - started)}, ETA {_eta(done, total, started)}"
 
 
 def run_sweep(sweep_path: Path, out: Path, jobs: int = 1, quick: bool = False, device: str = "cpu",
@@ -409,7 +512,8 @@ def _run_graph(sweep: SweepCfg, sweep_path: Path, out: Path, jobs: int, device: 
           f"({launcher}), phase B: {sweep.phase_b}", flush=True)
     if not pending:
         return 0
-    pool = _RayPool(jobs) if launcher == "ray" else _LocalPool(jobs)
+    pool = _RayPool(jobs) if launcher == "ray" else _SubmititPool(jobs, out) if launcher == "slurm" \
+        else _LocalPool(jobs)
     env = _cell_env(jobs)
     running: dict[Future, Cell] = {}
     failed: set[str] = set()
@@ -427,10 +531,11 @@ def _run_graph(sweep: SweepCfg, sweep_path: Path, out: Path, jobs: int, device: 
                 elif cell.parent is None or cell.parent in done_keys:
                     pending.remove(cell)
                     running[pool.submit(_Work(cell, out, sweep.eval_trials, device, env))] = cell
-                    print(f"[{finished}/{total}] {cell.key}: start", flush=True)
+                    print(f"[{finished}/{total}] {cell.key}: start ({_progress(finished, total, started)})",
+                          flush=True)
             if not running:
                 break
-            if isinstance(pool, _RayPool):
+            if isinstance(pool, (_RayPool, _SubmititPool)):
                 pool.resolve(set(running))
                 ready = {f for f in running if f.done()}
             else:
@@ -441,11 +546,17 @@ def _run_graph(sweep: SweepCfg, sweep_path: Path, out: Path, jobs: int, device: 
                 finished += 1
                 if code == 0:
                     done_keys.add(cell.key)
-                    print(f"[{finished}/{total}] {cell.key}: done (ETA {_eta(finished, total, started)})", flush=True)
+                    print(f"[{finished}/{total}] {cell.key}: done ({_progress(finished, total, started)})",
+                          flush=True)
                 else:
                     failed.add(cell.key)
-                    reason = f": {tail}" if tail else ""
-                    print(f"[{finished}/{total}] {cell.key}: FAILED (exit {code}){reason}", flush=True)
+                    print(f"[{finished}/{total}] {cell.key}: FAILED (exit {code}; "
+                          f"{_progress(finished, total, started)})"
+                          + "".join(f"\n    | {line}" for line in tail.splitlines()), flush=True)
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: jobs on a cluster do not see the sweep's signal
+        if isinstance(pool, _SubmititPool):
+            pool.cancel()
+        raise
     finally:
         pool.close()
     return len(failed)

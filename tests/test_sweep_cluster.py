@@ -1,0 +1,73 @@
+"""Sweeps at cluster scale: progress n/N with elapsed time and ETA, a failed cell's stderr tail,
+and the submitit launcher (SLURM) on submitit's local executor."""
+
+from __future__ import annotations
+
+import io
+import re
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from detach import cli
+from detach.runs.folder import find_runs
+from detach.config import ConfigError
+from detach.runs.sweep import run_sweep, stderr_tail
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = ["env.character=puppet", "sim.num_envs=4", "train.num_steps_per_env=8", "eval.num_envs=2",
+        "env.episode_length=60", "train.max_iterations=2"]
+
+
+def one_stage_sweep(tmp_path: Path, overrides: list[str]) -> Path:
+    sweep = tmp_path / "sweeps" / "one.yaml"
+    sweep.parent.mkdir(parents=True, exist_ok=True)
+    sweep.write_text(textwrap.dedent(f"""\
+        name: one
+        models: [mlp]
+        seeds: [0]
+        table: skills
+        stages:
+          - {{name: follow, task: {ROOT / 'configs/tasks/follow.yaml'}}}
+        eval:
+          follow: []
+        eval_trials: 2
+        overrides: [{', '.join(overrides)}]
+        """))
+    return sweep
+
+
+def test_a_failed_cell_prints_its_progress_and_the_tail_of_its_stderr(tmp_path: Path,
+                                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    sweep = one_stage_sweep(tmp_path, [*TINY, "train.init_from=/nowhere/run"])
+    assert cli.main(["--sweep", str(sweep), "--out", str(tmp_path / "runs")]) == 1
+    out = capsys.readouterr().out
+    assert re.search(r"\[0/1\] follow/mlp/s0/\w+: start \(elapsed \d+ s, ETA \?\)", out), out
+    assert re.search(r"\[1/1\] follow/mlp/s0/\w+: FAILED \(exit 2; elapsed \d+ s, ETA 0 s\)", out), out
+    assert re.search(r"\n    \| detach-run: error: train.init_from: /nowhere/run is neither a run folder", out), out
+
+
+def test_stderr_tail_shows_a_progress_bar_as_a_terminal_would() -> None:
+    err = io.BytesIO(b"start\ntrain: 1%\rtrain: 50%\rtrain: 99%\n" + b"x\n" * 3 + b"Traceback\nValueError: bad\n")
+    assert stderr_tail(err, lines=6).splitlines() == ["train: 99%", "x", "x", "x", "Traceback", "ValueError: bad"]
+
+
+@pytest.mark.slow
+def test_the_submitit_launcher_runs_cells_as_jobs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    pytest.importorskip("submitit")
+    monkeypatch.setenv("DETACH_SUBMITIT_CLUSTER", "local")
+    monkeypatch.setenv("DETACH_SUBMITIT", '{"timeout_min": 30}')
+    sweep = one_stage_sweep(tmp_path, TINY)
+    out = tmp_path / "runs"
+    assert run_sweep(sweep, out, jobs=1, launcher="slurm") == 0
+    runs = find_runs(out)
+    assert len(runs) == 1 and runs[0].status().state == "finished" and runs[0].eval_result() is not None
+    printed = capsys.readouterr().out
+    assert "(slurm)" in printed and re.search(r"\[1/1\] follow/mlp/s0/\w+: done \(elapsed", printed), printed
+    assert list((out / ".submitit").glob("*_log.out")), "submitit's job logs"
+    # a bad parameter is a one-line error before anything runs
+    monkeypatch.setenv("DETACH_SUBMITIT", "[1, 2]")
+    with pytest.raises(ConfigError, match="DETACH_SUBMITIT: expected a JSON object"):
+        run_sweep(one_stage_sweep(tmp_path / "b", [*TINY, "seed=1"]), tmp_path / "b" / "runs", launcher="slurm")
