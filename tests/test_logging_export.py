@@ -57,6 +57,7 @@ def test_tensorboard_mcap_and_progress_bar_share_rsl_rl_names_and_the_run_record
         assert key in keys, key
     events = list(run.path.glob("events.out.tfevents.*"))
     assert events, "no TensorBoard event file in the run folder"
+    assert not (run.path / "git").exists(), "provenance.json holds the code state, not rsl-rl's git/ folder"
     acc = EventAccumulator(str(run.path))
     acc.Reload()
     assert set(acc.Tags()["scalars"]) == keys, "TensorBoard and log.mcap carry the same names"

@@ -13,7 +13,6 @@ one output `actions` [N, num_actions], the policy's mean, which the environment 
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 

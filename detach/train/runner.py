@@ -39,7 +39,7 @@ import torch
 from rsl_rl.runners import OnPolicyRunner
 from tqdm import tqdm
 
-from detach.run_contract import checkpoint_file, replay_file
+from detach.run_contract import PROVENANCE_FILE, checkpoint_file, replay_file
 from detach.train.amp_ppo import REPLAY_KEY
 from detach.train.checkpoints import (
     CheckpointError, capture_rng, check_model, describe_mismatch, first_line, prune_checkpoints, read_checkpoint, read_sidecar,
@@ -118,7 +118,7 @@ class DetachRunner(OnPolicyRunner):
         super().__init__(env, {**train_cfg, "logger": "tensorboard" if logger == "none" else logger},
                          log_dir=None, device=device)
         self.logger.log_dir = str(log_dir) if log_dir is not None and logger != "none" else None
-        self.logger.git_status_repos = []  # provenance.json records the code state
+        self.logger._store_code_state = self._code_state_files  # provenance.json, not rsl-rl's git/*.diff
         self.schedule = schedule or [("ppo", 1)]
         self.checkpoint_dir = checkpoint_dir
         self.log = log
@@ -335,6 +335,11 @@ class DetachRunner(OnPolicyRunner):
         bar.close()
 
     # ------------------------------------------------------------------ logging sinks
+    def _code_state_files(self) -> list[str]:
+        """What rsl-rl's Logger uploads as the code state (W&B): the run's provenance.json."""
+        path = Path(self.logger.log_dir or ".") / PROVENANCE_FILE
+        return [str(path)] if self.logger.log_dir and path.exists() else []
+
     def write_metrics(self, it: int, metrics: dict[str, float]) -> None:
         """The iteration's metrics through rsl-rl's writer (TensorBoard, W&B), if any."""
         writer = self.logger.writer
