@@ -112,13 +112,23 @@ def ppo_iteration(model: str, n: int, steps: int, device: torch.device, iteratio
     cfg = _cfg("lh1", model, ["env.character=humanoid", f"sim.num_envs={n}", f"train.num_steps_per_env={steps}",
                               f"train.max_iterations={iterations + 1}"])
     cfg = dataclasses.replace(cfg, device=str(device))
-    times: list[float] = []
     _env, runner = build_runner(cfg, None, str(device), log=None, progress=False)
-    runner.on_iteration = lambda it, m: times.append(m["time/collect"] + m["time/learn"])
+    stamps = [time.perf_counter()]
+    runner.on_iteration = lambda it, m: stamps.append(time.perf_counter())
     runner.learn(iterations + 1)
+    times = [b - a for a, b in zip(stamps, stamps[1:])]
     s = min(times[1:]) if len(times) > 1 else times[0]
     print(f"PPO {model}: {s:.2f} s per iteration ({n} x {steps})", flush=True)
     return {"model": model, "n": n, "steps": steps, "s_per_iteration": s, "first_s": times[0]}
+
+
+def _metric(metrics: dict, *names: str) -> float | None:
+    """The first metric named (or ending with) one of names: the log's names may change."""
+    for name in names:
+        for key, value in metrics.items():
+            if key == name or key.endswith("/" + name):
+                return float(value)
+    return None
 
 
 def learning_curve(n: int, steps: int, device: torch.device, seconds: float) -> dict:
@@ -136,7 +146,7 @@ def learning_curve(n: int, steps: int, device: torch.device, seconds: float) -> 
 
     def on_iteration(it: int, m: dict) -> None:
         curve.append({"iteration": it, "minutes": (time.perf_counter() - t0) / 60,
-                      "reward": m.get("reward/mean"), "follow": m.get("Success/0_follow")})
+                      "reward": _metric(m, "reward/mean", "Train/mean_reward"), "follow": _metric(m, "0_follow")})
         if time.perf_counter() - t0 > seconds:
             raise Done
 
