@@ -136,7 +136,7 @@ def measure(runs: Path, live: Path) -> dict[str, float]:
         step = [10_000]
 
         def grow() -> None:
-            writer.log_metrics(step[0], {"reward/mean": 1.0, "loss/value": 0.5})
+            writer.log_metrics(step[0], {"Train/mean_reward": 1.0, "Loss/value": 0.5})
             step[0] += 1
             writer.flush()
             dashboard.poll()
@@ -168,7 +168,7 @@ def big_log_rows(tmp: Path, megabytes: float) -> list[tuple[str, str]]:
                 log.log_frame(EpisodeFrame(episode, f, f / 30, list(BODY_NAMES),
                                            (base_pos[f] + noise[f]).tolist(), base_quat[f].tolist()))
                 if f % 30 == 0:
-                    log.log_metrics(it, {"reward/mean": it * 1e-3, "fps": 1000.0})
+                    log.log_metrics(it, {"Train/mean_reward": it * 1e-3, "Perf/total_fps": 1000.0})
                     it += 1
             episode += 1
     path = run.log_path

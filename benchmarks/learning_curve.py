@@ -25,15 +25,15 @@ def main() -> None:
     metrics = read_metrics(args.run / "log.mcap")
     if not metrics:
         raise SystemExit(f"{args.run}: no /metrics messages")
-    success_keys = sorted({k for m in metrics for k in m if k.startswith("Success/")})
-    columns = ["reward/mean", "episode/length", "loss/reward_task", "loss/reward_style",
+    success_keys = sorted({k for m in metrics for k in m if k.startswith("Episode_Success/")})
+    columns = ["Train/mean_reward", "Train/mean_episode_length", "Train/step_reward_task", "Train/step_reward_style",
                *success_keys]
     print("| iter | minutes | " + " | ".join(columns) + " |")
     print("|" + "---|" * (len(columns) + 2))
     elapsed = 0.0
     window: list[dict] = []
     for m in metrics:
-        elapsed += m.get("time/collect", 0.0) + m.get("time/learn", 0.0)
+        elapsed += m.get("Perf/collection_time", 0.0) + m.get("Perf/learning_time", 0.0)
         window.append(m)
         if (m["iteration"] + 1) % args.every == 0 or m is metrics[-1]:
             cells = []

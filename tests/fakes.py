@@ -35,5 +35,5 @@ class PointMassEnv(VecEnv):
         self.pos[ids] = torch.randn(len(ids), 2) * 2
         self.prev[ids] = self.pos[ids]
         self.episode_length_buf[ids] = 0
-        extras = {"time_outs": time_outs, "log": {"success/follow": (reward > 0.8).float().mean()}}
+        extras = {"time_outs": time_outs, "log": {"Episode_Success/follow": (reward > 0.8).float().mean()}}
         return self.get_observations(), reward, time_outs, extras

@@ -43,7 +43,7 @@ def test_finished_run_leaves_the_contracted_files(tmp_path: Path) -> None:
     assert (run.checkpoints / "model_1.pt").exists()
     assert "evaluation on follow" in run.stdout_path.read_text()
     metrics = read_metrics(run.log_path)
-    assert [m["iteration"] for m in metrics] == [0, 1] and metrics[0]["fps"] > 0
+    assert [m["iteration"] for m in metrics] == [0, 1] and metrics[0]["Perf/total_fps"] > 0
     scene = read_scene(run.log_path)
     assert len(scene.bodies) == 15 and scene.body_geoms
     assert [t.skill for t in scene.targets] == [] and scene.objects == []  # traj_rand: nothing to draw

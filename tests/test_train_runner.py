@@ -36,8 +36,8 @@ def test_stages_metrics_and_checkpoints(tmp_path: Path) -> None:
     metrics = read_metrics(tmp_path / "log.mcap")
     assert [m["iteration"] for m in metrics] == [0, 1, 2]
     assert [m["stage"] for m in metrics] == ["pretrain", "fusion", "joint"]
-    assert "loss/surrogate" not in metrics[0] and "loss/surrogate" in metrics[1]
-    assert all(m["fps"] > 0 and "loss/amp/accuracy" in m for m in metrics)
+    assert "Loss/surrogate" not in metrics[0] and "Loss/surrogate" in metrics[1]
+    assert all(m["Perf/total_fps"] > 0 and "Loss/amp/accuracy" in m for m in metrics)
     assert sorted(p.name for p in tmp_path.glob("model_*.pt")) == ["model_1.pt", "model_2.pt"]
 
 
@@ -103,7 +103,7 @@ def test_a_resumed_run_is_the_run_that_would_have_happened(tmp_path: Path) -> No
     env_at_checkpoint = copy.deepcopy(first.env)
     replay_at_checkpoint = first.alg.replay.state_dict()
     draws: list[torch.Tensor] = []
-    first.on_iteration = lambda it, m: draws.append(torch.tensor(m["loss/surrogate"]))
+    first.on_iteration = lambda it, m: draws.append(torch.tensor(m["Loss/surrogate"]))
     first.learn(4)
 
     torch.manual_seed(1234)  # another random state and another initialisation
@@ -115,7 +115,7 @@ def test_a_resumed_run_is_the_run_that_would_have_happened(tmp_path: Path) -> No
     assert restored["size"] == replay_at_checkpoint["size"] > 0
     assert torch.equal(restored["obs"], replay_at_checkpoint["obs"])
     again: list[torch.Tensor] = []
-    second.on_iteration = lambda it, m: again.append(torch.tensor(m["loss/surrogate"]))
+    second.on_iteration = lambda it, m: again.append(torch.tensor(m["Loss/surrogate"]))
     second.learn(4)
     assert torch.equal(torch.stack(draws), torch.stack(again))
     for a, b in zip(first.alg.actor.parameters(), second.alg.actor.parameters(), strict=True):

@@ -24,8 +24,8 @@ def test_three_iterations_of_each_model_write_a_checkpoint(model: str, tmp_path:
     seen: list[dict] = []
     runner.on_iteration = lambda _it, metrics: seen.append(metrics)
     runner.learn(3)
-    assert len(seen) == 3 and all(torch.isfinite(torch.tensor(m["fps"])) for m in seen)
-    assert "loss/amp/accuracy" in seen[-1] or "loss/amp_upper/accuracy" in seen[-1]
+    assert len(seen) == 3 and all(torch.isfinite(torch.tensor(m["Perf/total_fps"])) for m in seen)
+    assert "Loss/amp/accuracy" in seen[-1] or "Loss/amp_upper/accuracy" in seen[-1]
     saved = torch.load(tmp_path / "model_2.pt", weights_only=False)
     assert saved["iter"] == 2 and "discriminator_state_dict" in saved
     if model == "cml":
