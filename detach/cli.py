@@ -1,4 +1,5 @@
-"""`detach-run`: train, evaluate, resume and sweep runs; list runs; print the paper's tables.
+"""`detach-run`: train, evaluate, resume, sweep, play and export runs; list runs; print the paper's
+tables; list config keys.
 
 User errors (bad config, bad flag, missing file) print one line and exit with code 2;
 tracebacks are reserved for bugs (and go to the run's stdout.log).
@@ -24,21 +25,29 @@ EXIT_USAGE = 2
 DESCRIPTION = """\
 Run the DETACH study: train a model on a task, evaluate it, resume it, sweep a grid.
 
-  detach-run configs/tasks/lh1.yaml --model detach            train, then evaluate
-  detach-run configs/tasks/lh3.yaml --model ablation_a1 --dry-run
-  detach-run configs/tasks/follow.yaml --model mlp env.character=puppet train.max_iterations=50
-  detach-run --resume runs/20261123-120000-lh1-detach-s0 [train.max_iterations=2000] [--dry-run]
-  detach-run --eval runs/20261123-120000-lh1-detach-s0 --task configs/tasks/lh2.yaml
-  detach-run --sweep configs/sweeps/table3_ablation.yaml --quick --jobs 2
+  detach-run train lh1 --model detach                         train, then evaluate
+  detach-run train lh3 --model ablation_a1 --dry-run          print the resolved config
+  detach-run train follow --model mlp env.character=puppet train.max_iterations=50
+  detach-run resume runs/20261123-120000-lh1-detach-s0 [train.max_iterations=2000] [--dry-run]
+  detach-run eval runs/20261123-120000-lh1-detach-s0 --task lh2 [--video eval.mp4]
+  detach-run sweep configs/sweeps/table3_ablation.yaml --quick --jobs 2
+  detach-run play runs/20261123-120000-lh1-detach-s0 [--video play.mp4]
+  detach-run export runs/20261123-120000-lh1-detach-s0 --format onnx
   detach-run list                                             table of runs
   detach-run table configs/sweeps/table1.yaml                 the paper's table from eval.json files
+  detach-run keys [sim|env|rewards|eval|model|model.detach|train|task]   every config key
 
-TASK_YAML is a file under configs/tasks/ (follow, carry, climb, sit, lh1, lh2, lh3).
+Each subcommand has its own --help. The earlier forms still work: `detach-run TASK ...`
+(= train), `--resume RUN_DIR`, `--eval RUN_DIR`, `--sweep SWEEP_YAML`, and `--out` for `--runs`.
+
+A task is a name (follow, carry, climb, sit, lh1, lh2, lh3: configs/tasks/ of the working
+directory, else the ones shipped with detach) or a path to a task YAML.
 --model takes a name from configs/models/ (detach, ablation_a1, ablation_a2, tokenhsi, cml,
 mlp) or a path to a model YAML. Overrides are key.path=value with YAML values, e.g.
-sim.num_envs=16, scene[0].pos3d=[1,2,0.35]; +key.path=value adds a key that does not exist.
-Every run is a folder runs/<YYYYmmdd-HHMMSS>-<task>-<model>-s<seed>/ with config.yaml,
-status.json, stdout.log, log.mcap, checkpoints/ and eval.json.
+sim.num_envs=16, scene[0].pos3d=[1,2,0.35]; +key.path=value adds a key that does not exist
+(`detach-run keys` lists them). Every run is a folder
+<runs>/<YYYYmmdd-HHMMSS>-<task>-<model>-s<seed>/ with config.yaml, status.json, stdout.log,
+log.mcap, checkpoints/ and eval.json.
 """
 
 
@@ -67,53 +76,91 @@ def _int_in(low: int, high: int | None = None) -> Callable[[str], int]:
 MAX_SEED = 2**32 - 1
 """NumPy's seeds are 32-bit."""
 
+COMMANDS = ("train", "eval", "resume", "sweep", "play", "export", "list", "table", "keys")
+"""`detach-run COMMAND ...`; anything else is the earlier form (TASK, --resume, --eval, --sweep)."""
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(
-        prog="detach-run", description=DESCRIPTION,
-        formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("task", metavar="TASK_YAML", nargs="?",
-                        help="task configuration file (not with --resume/--eval/--sweep)")
+DEFAULTS = dict(task=None, overrides=[], preset=[], model="detach", seed=0, device="cpu",
+                runs=Path("runs"), dry_run=False, resume=None, eval=None, sweep=None, eval_task=None,
+                eval_on=[], trials=None, no_eval=False, quick=False, jobs=1, models=None,
+                launcher="local", cell=None, video=None)
+"""Every option a command handler reads; a subcommand's parser sets those it has."""
+
+
+def version() -> str:
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as dist_version
+
+    try:
+        return dist_version("detach")
+    except PackageNotFoundError:  # a source tree that is not installed
+        return "unknown"
+
+
+def _subparser(command: str, description: str) -> _Parser:
+    return _Parser(prog=f"detach-run {command}", description=description,
+                   formatter_class=argparse.RawDescriptionHelpFormatter)
+
+
+def _add_runs(parser: argparse.ArgumentParser, what: str = "parent folder of run folders") -> None:
+    parser.add_argument("--runs", "--out", dest="runs", type=Path, default=Path("runs"), metavar="DIR",
+                        help=f"{what} (default: runs/; --out is the earlier spelling)")
+
+
+def _add_device(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--device", default="cpu", help="torch device: cpu, cuda or cuda:N (default: cpu)")
+
+
+def _add_overrides(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("overrides", nargs="*", metavar="key=value",
                         help="config overrides (YAML values); +key=value adds a new key")
+
+
+def _add_after_training(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--eval-on", action="append", default=[], metavar="TASK",
+                        help="after training, also evaluate on this task (name or YAML; repeatable)")
+    parser.add_argument("--no-eval", action="store_true",
+                        help="train only; skip the evaluation at the end")
+
+
+def _add_trials(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--trials", type=_int_in(1), default=None,
+                        help="evaluation episodes (default: eval.trials of the config, 100)")
+
+
+def _add_eval_task(parser: argparse.ArgumentParser, what: str) -> None:
+    parser.add_argument("--task", dest="eval_task", metavar="TASK",
+                        help=f"the task to {what} on, a name or a YAML (default: the run's task); "
+                             "a policy trained on LH1 evaluated on LH2/LH3 is the paper's "
+                             "environment-generalisation experiment")
+
+
+def _add_video(parser: argparse.ArgumentParser, what: str) -> None:
+    parser.add_argument("--video", type=Path, metavar="FILE.mp4",
+                        help=f"render {what} offscreen (MuJoCo, EGL or OSMesa) to this mp4")
+
+
+def _add_train_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--preset", action="append", default=[], metavar="NAME",
                         help="merge configs/presets/NAME.yaml (or a path) over task and model, before "
                              "the overrides; repeatable (e.g. paper, tokenhsi_ppo). With --sweep: one "
                              "of the sweep's presets (e.g. quick, laptop)")
     parser.add_argument("--model", default="detach",
-                        help="model name in configs/models/ or a model YAML path "
-                             "(default: detach)")
+                        help="model name in configs/models/ or a model YAML path (default: detach)")
     parser.add_argument("--seed", type=_int_in(0, MAX_SEED), default=0,
                         help="random seed, 0 to 2^32-1 (default: 0)")
-    parser.add_argument("--device", default="cpu",
-                        help="torch device: cpu, cuda or cuda:N (default: cpu)")
-    parser.add_argument("--out", type=Path, default=Path("runs"),
-                        help="parent folder of run folders (default: runs/)")
+    _add_device(parser)
+    _add_runs(parser)
     parser.add_argument("--dry-run", action="store_true",
                         help="resolve and print the config and the run folder it would "
                              "create, then exit (with --resume: the config it would continue with)")
-    mode = parser.add_mutually_exclusive_group()
-    mode.add_argument("--resume", type=Path, metavar="RUN_DIR",
-                      help="continue an interrupted or failed run from its latest checkpoint")
-    mode.add_argument("--eval", type=Path, metavar="RUN_DIR|CKPT",
-                      help="evaluate a run's latest checkpoint (or the given checkpoint)")
-    mode.add_argument("--sweep", type=Path, metavar="SWEEP_YAML",
-                      help="run every unfinished cell of a sweep (configs/sweeps/)")
-    parser.add_argument("--task", dest="eval_task", type=Path, metavar="TASK_YAML",
-                        help="with --eval: the task to evaluate on (default: the run's task); "
-                             "a policy trained on LH1 evaluated on LH2/LH3 is the paper's "
-                             "environment-generalisation experiment")
-    parser.add_argument("--eval-on", action="append", type=Path, default=[],
-                        metavar="TASK_YAML",
-                        help="after training, also evaluate on this task (repeatable)")
-    parser.add_argument("--trials", type=_int_in(1), default=None,
-                        help="evaluation episodes (default: eval.trials of the config, 100)")
-    parser.add_argument("--no-eval", action="store_true",
-                        help="train only; skip the evaluation at the end")
+
+
+def _add_sweep_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true",
                         help="with --sweep: use the sweep's quick preset (CPU smoke run)")
     parser.add_argument("--jobs", type=_int_in(1), default=1,
-                        help="with --sweep: cells run in parallel (default: 1)")
+                        help="with --sweep: cells run in parallel (default: 1, as each run uses every "
+                             "core; detach-scene build defaults to all cores)")
     parser.add_argument("--models", default=None, metavar="A,B",
                         help="with --sweep: run only these of the sweep's models (their cells are "
                              "the same as in the whole sweep, so a later full run skips them)")
@@ -122,15 +169,118 @@ def build_parser() -> argparse.ArgumentParser:
                              "RAY_ADDRESS, else a local Ray; the [ray] extra) or SLURM jobs through "
                              "submitit (the [slurm] extra; DETACH_SUBMITIT holds the job parameters "
                              "as JSON, docs/PROTOCOL.md)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The earlier form: `detach-run TASK ...`, `--resume`, `--eval`, `--sweep` (and --help)."""
+    parser = _Parser(
+        prog="detach-run", description=DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action="version", version=f"detach-run {version()}")
+    parser.add_argument("task", metavar="TASK", nargs="?",
+                        help="task name or YAML (not with --resume/--eval/--sweep); or a COMMAND: "
+                             + ", ".join(COMMANDS))
+    _add_overrides(parser)
+    _add_train_options(parser)
+    mode = parser.add_mutually_exclusive_group()
+    mode.add_argument("--resume", type=Path, metavar="RUN_DIR",
+                      help="continue an interrupted or failed run from its latest checkpoint")
+    mode.add_argument("--eval", type=Path, metavar="RUN_DIR|CKPT",
+                      help="evaluate a run's latest checkpoint (or the given checkpoint)")
+    mode.add_argument("--sweep", type=Path, metavar="SWEEP_YAML",
+                      help="run every unfinished cell of a sweep (configs/sweeps/)")
+    _add_eval_task(parser, "evaluate (with --eval)")
+    _add_after_training(parser)
+    _add_trials(parser)
+    _add_sweep_options(parser)
+    _add_video(parser, "with --eval: env 0's first episode")
     parser.add_argument("--cell", help=argparse.SUPPRESS)
     return parser
 
 
+def build_train_parser() -> argparse.ArgumentParser:
+    parser = _subparser("train", "Train a model on a task in a new run folder, then evaluate it.")
+    parser.add_argument("task", metavar="TASK", help="task name (lh1, follow, ...) or task YAML")
+    _add_overrides(parser)
+    _add_train_options(parser)
+    _add_after_training(parser)
+    _add_trials(parser)
+    parser.add_argument("--cell", help=argparse.SUPPRESS)
+    return parser
+
+
+def build_eval_parser() -> argparse.ArgumentParser:
+    parser = _subparser("eval", "Evaluate a run's newest readable checkpoint (or the given checkpoint file); "
+                                "writes eval.json (eval_<task>.json for another task).")
+    parser.add_argument("eval", type=Path, metavar="RUN_DIR|CKPT")
+    _add_eval_task(parser, "evaluate")
+    _add_trials(parser)
+    _add_device(parser)
+    _add_video(parser, "env 0's first evaluation episode")
+    return parser
+
+
+def build_resume_parser() -> argparse.ArgumentParser:
+    parser = _subparser("resume", "Continue an interrupted or failed run from its newest readable checkpoint; "
+                                  "overrides may only train longer (train.max_iterations, ...).")
+    parser.add_argument("resume", type=Path, metavar="RUN_DIR")
+    _add_overrides(parser)
+    _add_device(parser)
+    parser.add_argument("--dry-run", action="store_true", help="print the config it would continue with")
+    _add_after_training(parser)
+    _add_trials(parser)
+    return parser
+
+
+def build_sweep_parser() -> argparse.ArgumentParser:
+    parser = _subparser("sweep", "Run every unfinished cell of a sweep (configs/sweeps/): a graph of runs "
+                                 "whose stages start from earlier stages' weights.")
+    parser.add_argument("sweep", type=Path, metavar="SWEEP_YAML")
+    _add_runs(parser)
+    parser.add_argument("--preset", action="append", default=[], metavar="NAME",
+                        help="one of the sweep's presets (e.g. quick, laptop)")
+    _add_sweep_options(parser)
+    _add_trials(parser)
+    _add_device(parser)
+    return parser
+
+
+def build_play_parser() -> argparse.ArgumentParser:
+    parser = _subparser("play", "Watch a trained policy: episodes live in the viser 3D viewer (the camera "
+                                "follows the character), or rendered to an mp4 with --video.")
+    parser.add_argument("target", type=Path, metavar="RUN_DIR|CKPT")
+    _add_eval_task(parser, "play")
+    _add_device(parser)
+    _add_video(parser, "the episodes (no viewer)")
+    parser.add_argument("--episodes", type=_int_in(1), default=None,
+                        help="stop after this many episodes (default: 1 with --video, else until Ctrl-C)")
+    parser.add_argument("--steps", type=_int_in(1), default=None,
+                        help="stop after this many control steps (default: no limit)")
+    parser.add_argument("--host", default="127.0.0.1", help="viewer address (default: 127.0.0.1)")
+    parser.add_argument("--port", type=_int_in(1, 65535), default=8081, help="viewer port (default: 8081)")
+    parser.add_argument("--width", type=_int_in(16), default=640, help="--video frame width (default: 640)")
+    parser.add_argument("--height", type=_int_in(16), default=480, help="--video frame height (default: 480)")
+    return parser
+
+
+def build_export_parser() -> argparse.ArgumentParser:
+    parser = _subparser("export", "Export a run's policy (input normaliser and observation history included) "
+                                  "for inference outside detach.")
+    parser.add_argument("target", type=Path, metavar="RUN_DIR")
+    parser.add_argument("--checkpoint", type=_int_in(0), default=None, metavar="N",
+                        help="iteration of the checkpoint (default: the newest readable one)")
+    parser.add_argument("--format", dest="fmt", choices=["onnx", "jit"], default="onnx",
+                        help="ONNX (onnxruntime) or TorchScript (default: onnx)")
+    parser.add_argument("--output", type=Path, default=None, metavar="FILE",
+                        help="where to write it (default: inside the run folder)")
+    return parser
+
+
 def build_list_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="detach-run list",
-                                     description="Print a table of the runs in a folder.")
-    parser.add_argument("runs", type=Path, nargs="?", default=Path("runs"),
-                        help="runs folder (default: runs/)")
+    parser = _subparser("list", "Print a table of the runs in a folder.")
+    parser.add_argument("positional_runs", type=Path, nargs="?", metavar="RUNS_DIR",
+                        help="runs folder (same as --runs)")
+    _add_runs(parser, "runs folder")
     return parser
 
 
@@ -159,6 +309,33 @@ def build_table_parser() -> argparse.ArgumentParser:
                        help="with a sweep: the cells of this sweep preset (as run with --sweep --preset)")
     which.add_argument("--quick", action="store_true", help="with a sweep: the cells of its quick preset")
     return parser
+
+
+def build_keys_parser() -> argparse.ArgumentParser:
+    parser = _subparser("keys", "List every config key (override path, type, default, doc), read from the "
+                                "config dataclasses (detach/config_schema.py and each model kind's class).")
+    parser.add_argument("section", nargs="?", default=None,
+                        help="a section (task, sim, env, rewards, eval, model, train), a model kind "
+                             "(model.detach, model.tokenhsi, ...) or a key prefix (train.amp); default: all")
+    return parser
+
+
+PARSERS: dict[str, Callable[[], argparse.ArgumentParser]] = {
+    "train": build_train_parser, "eval": build_eval_parser, "resume": build_resume_parser,
+    "sweep": build_sweep_parser, "play": build_play_parser, "export": build_export_parser,
+    "list": build_list_parser, "table": build_table_parser, "keys": build_keys_parser}
+
+
+def task_path(task: str | Path, option: str = "") -> Path:
+    """A task name (`lh1`) or path, as the path of its YAML; ConfigError naming the option."""
+    from detach.config import find_task_file
+
+    try:
+        return find_task_file(task)
+    except ConfigError as exc:
+        if option:
+            raise ConfigError(f"{option}: {exc}") from None
+        raise
 
 
 def check_device(device: str) -> None:
@@ -200,57 +377,121 @@ def main(argv: Sequence[str] | None = None) -> int:
         signal.signal(signal.SIGTERM, previous)
 
 
+def parse_args(argv: Sequence[str]) -> argparse.Namespace:
+    """`detach-run COMMAND ...` or the earlier forms, as one namespace with `command` set and
+    every option of `DEFAULTS` present."""
+    argv = list(argv)
+    if argv and argv[0] in PARSERS:
+        command, parser = argv[0], PARSERS[argv[0]]()
+        args = parser.parse_intermixed_args(argv[1:]) if command in ("train", "resume") \
+            else parser.parse_args(argv[1:])
+    else:
+        args = build_parser().parse_intermixed_args(argv)
+        command = "sweep" if args.sweep else "resume" if args.resume else "eval" if args.eval else "train"
+        if command != "train" and args.task:
+            # No TASK in these modes: a positional key=value is an override.
+            args.overrides, args.task = [args.task, *args.overrides], None
+    for key, value in DEFAULTS.items():
+        if not hasattr(args, key):
+            setattr(args, key, value)
+    args.command = command
+    return args
+
+
 def _main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
-        if argv and argv[0] == "list":
+        args = parse_args(argv)
+        if args.command == "list":
             from detach.runs.listing import print_runs
 
-            return print_runs(build_list_parser().parse_args(argv[1:]).runs)
-        if argv and argv[0] == "table":
+            return print_runs(args.positional_runs or args.runs)
+        if args.command == "table":
             from detach.runs.tables_cli import print_table
 
-            args = build_table_parser().parse_args(argv[1:])
             return print_table(args.source, args.runs, args.kind, args.out, args.task, args.sgr,
                                "quick" if args.quick else args.preset)
-        args = build_parser().parse_intermixed_args(argv)
-        if (args.resume or args.eval or args.sweep) and args.task:
-            # No TASK_YAML in these modes: a positional key=value is an override.
-            args.overrides, args.task = [args.task, *args.overrides], None
+        if args.command == "keys":
+            return _keys(args.section)
+        if args.command == "export":
+            return _export(args)
         check_device(args.device)
-        if args.sweep:
+        if args.command == "play":
+            return _play(args)
+        if args.command == "sweep":
             from detach.runs.sweep import run_sweep
 
             if len(args.preset) > 1:
                 raise ConfigError("--sweep takes one --preset (one of the sweep's presets)")
-            failed = run_sweep(args.sweep, args.out, args.jobs, args.quick, args.device,
+            failed = run_sweep(args.sweep, args.runs, args.jobs, args.quick, args.device,
                                launcher=args.launcher, preset=next(iter(args.preset), None),
                                models=args.models.split(",") if args.models else None)
             return 1 if failed else 0
-        if args.resume:
+        if args.command == "resume":
             return _resume(args)
-        if args.eval:
+        if args.command == "eval":
             return _evaluate(args)
         return _train(args)
     except ConfigError as exc:
         return _fail(exc)
 
 
+def _keys(section: str | None) -> int:
+    from detach.config_keys import format_keys, select
+
+    try:
+        keys = select(section)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    print(format_keys(keys))
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    """`detach.runs.export.export_run(run_dir, checkpoint=N|None, fmt='onnx'|'jit', output=Path|None)`."""
+    from detach.runs.export import export_run
+
+    exported = export_run(args.target, checkpoint=args.checkpoint, fmt=args.fmt, output=args.output)
+    print(f"exported to {exported}")
+    return 0
+
+
+def _play(args: argparse.Namespace) -> int:
+    run, checkpoint = _run_and_checkpoint(args.target)
+    eval_task = task_path(args.eval_task, "--task") if args.eval_task else None
+    if args.video is not None:
+        _choose_gl()
+    from server.play_view import play
+
+    return play(run, checkpoint, eval_task, device=args.device, video=args.video, episodes=args.episodes,
+                steps=args.steps, host=args.host, port=args.port, size=(args.width, args.height))
+
+
+def _run_and_checkpoint(target: Path) -> tuple[RunFolder, Path | None]:
+    """A run folder or one of its checkpoint files -> (run, that checkpoint or None)."""
+    if not target.exists():
+        raise ConfigError("run folder or checkpoint not found", str(target))
+    checkpoint = target if target.is_file() else None
+    run = RunFolder(target.parent.parent if checkpoint else target)
+    if not run.config_path.exists():
+        raise ConfigError("not a run folder (no config.yaml)", str(run.path))
+    if checkpoint is None and run.latest_checkpoint() is None:
+        raise ConfigError("run has no checkpoint", str(run.path))
+    return run, checkpoint
+
+
 def _train(args: argparse.Namespace) -> int:
     if args.task is None:
-        raise ConfigError("missing TASK_YAML (or use --resume, --eval, --sweep, list, table)")
-    if not Path(args.task).exists():
-        raise ConfigError("task file not found", args.task)
-    for extra in args.eval_on:
-        if not extra.exists():
-            raise ConfigError("task file not found (--eval-on)", str(extra))
+        raise ConfigError("missing TASK (or use a command: " + ", ".join(COMMANDS) + ")")
+    task = task_path(args.task)
+    eval_on = [task_path(extra, "--eval-on") for extra in args.eval_on]
     from detach.train.checks import complete_run_config
 
-    cfg = complete_run_config(resolve(args.task, args.model, args.overrides, seed=args.seed, device=args.device,
+    cfg = complete_run_config(resolve(task, args.model, args.overrides, seed=args.seed, device=args.device,
                                       presets=args.preset))
     if args.dry_run:
         sys.stdout.write(dump(cfg))
-        print(f"# run folder: {args.out / run_folder_name(cfg)}")
+        print(f"# run folder: {args.runs / run_folder_name(cfg)}")
         return 0
     from detach.train.distributed import is_worker
 
@@ -263,15 +504,15 @@ def _train(args: argparse.Namespace) -> int:
     from detach.runs.session import train_and_evaluate
 
     try:
-        run = RunFolder.create(args.out, cfg)
+        run = RunFolder.create(args.runs, cfg)
         if args.cell:
             run.set_state("queued", cell=args.cell)
     except OSError as exc:
-        raise ConfigError(f"cannot create a run folder under --out {args.out} "
+        raise ConfigError(f"cannot create a run folder under --runs {args.runs} "
                           f"({exc.strerror or exc}); expected a writable folder") from None
     print(f"run folder: {run.path}")
     code = run_job(run, lambda r: train_and_evaluate(
-        r, resume=False, eval_tasks=args.eval_on, trials=args.trials, evaluate=not args.no_eval))
+        r, resume=False, eval_tasks=eval_on, trials=args.trials, evaluate=not args.no_eval))
     print(f"run folder: {run.path}")
     return code
 
@@ -297,9 +538,10 @@ def _resume(args: argparse.Namespace) -> int:
     from detach.runs.job import run_job
     from detach.runs.session import train_and_evaluate
 
+    eval_on = [task_path(extra, "--eval-on") for extra in args.eval_on]
     print(f"resuming {run.path} from {checkpoint.name}")
     return run_job(run, lambda r: train_and_evaluate(
-        r, resume=True, eval_tasks=args.eval_on, trials=args.trials, evaluate=not args.no_eval,
+        r, resume=True, eval_tasks=eval_on, trials=args.trials, evaluate=not args.no_eval,
         device=args.device, checkpoint=checkpoint))
 
 
@@ -372,17 +614,10 @@ def _extended_config(run: RunFolder, overrides: Sequence[str], checkpoint: Path)
 
 
 def _evaluate(args: argparse.Namespace) -> int:
-    target = args.eval
-    if not target.exists():
-        raise ConfigError("run folder or checkpoint not found", str(target))
-    checkpoint = target if target.is_file() else None
-    run = RunFolder(target.parent.parent if checkpoint else target)
-    if not run.config_path.exists():
-        raise ConfigError("not a run folder (no config.yaml)", str(run.path))
-    if checkpoint is None and run.latest_checkpoint() is None:
-        raise ConfigError("run has no checkpoint to evaluate", str(run.path))
-    if args.eval_task is not None and not args.eval_task.exists():
-        raise ConfigError("task file not found (--task)", str(args.eval_task))
+    run, checkpoint = _run_and_checkpoint(args.eval)
+    eval_task = task_path(args.eval_task, "--task") if args.eval_task is not None else None
+    if args.video is not None:
+        _choose_gl()  # before anything imports mujoco
     from detach.runs.session import evaluate_run
 
     if checkpoint is not None:
@@ -393,10 +628,22 @@ def _evaluate(args: argparse.Namespace) -> int:
     live = run.owner_alive()
     if live:
         print("the run is still training: its log.mcap is left alone (no episode recorded)")
-    path = evaluate_run(run, args.eval_task, checkpoint, args.trials, device=args.device,
-                        record=not live)
+    path = evaluate_run(run, eval_task, checkpoint, args.trials, device=args.device, record=not live)
     print(f"evaluation written to {path}")
+    if args.video is not None:
+        from detach.runs.play import play_video
+
+        play_video(run, checkpoint, eval_task, args.video, device=args.device, episodes=1)
     return 0
+
+
+def _choose_gl() -> None:
+    from detach.runs.video import VideoError, choose_gl
+
+    try:
+        choose_gl()
+    except VideoError as exc:
+        raise ConfigError(f"--video: {exc}") from None
 
 
 if __name__ == "__main__":

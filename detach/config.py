@@ -256,16 +256,26 @@ def task_name_of(task_path: Path) -> str:
     return Path(task_path).stem
 
 
+def builtin_configs() -> Path:
+    """The configs/ shipped with detach: `detach/configs/` inside an installed wheel (package
+    data), the checkout's `configs/` in a source tree or an editable install."""
+    here = Path(__file__).resolve().parent
+    packaged = here / "configs"
+    return packaged if packaged.is_dir() else here.parent / "configs"
+
+
 def find_config_file(kind: str, name: str, task_path: Path | None = None) -> Path:
-    """A model (`kind` models) or preset (`presets`) YAML given as a file path or a name looked
-    up in configs/<kind>/ beside the task's folder, then under the working directory."""
+    """A YAML of configs/<kind>/ (tasks, models, presets, sweeps) given as a file path or a
+    name looked up beside the task's folder, then under the working directory's configs/, then
+    in the configs shipped with detach (`builtin_configs`)."""
     as_path = Path(name)
-    if as_path.suffix in (".yaml", ".yml") or "/" in name:
+    if as_path.suffix in (".yaml", ".yml") or "/" in name or as_path.is_file():
         return as_path
     roots = []
     if task_path is not None:
         roots.append(Path(task_path).resolve().parent.parent / kind)
     roots.append(Path.cwd() / "configs" / kind)
+    roots.append(builtin_configs() / kind)
     for root in roots:
         candidate = root / f"{name}.yaml"
         if candidate.exists():
@@ -274,6 +284,15 @@ def find_config_file(kind: str, name: str, task_path: Path | None = None) -> Pat
     what = kind[:-1]
     raise ConfigError(f"unknown {what} '{name}'{suggest(name, names)}; available: "
                       f"{', '.join(names) or 'none found'}")
+
+
+def find_task_file(task: str | Path) -> Path:
+    """A task given as a path (`configs/tasks/lh1.yaml`) or a name (`lh1`); ConfigError naming
+    the available tasks when neither exists."""
+    path = find_config_file("tasks", str(task))
+    if not path.is_file():
+        raise ConfigError("task file not found", str(task))
+    return path
 
 
 def find_model_file(model: str, task_path: Path | None = None) -> Path:

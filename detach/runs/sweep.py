@@ -37,7 +37,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import BinaryIO, Literal, Sequence
 
-from detach.config import load_merged
+from detach.config import find_config_file, load_merged
 from detach.config_validate import Builder
 from detach.run_contract import eval_file
 from detach.runs.folder import RunFolder, find_runs
@@ -116,10 +116,17 @@ class Cell:
 
 
 def task_file(sweep_path: Path, name: str) -> Path:
-    """`lh1` -> configs/tasks/lh1.yaml beside the sweep's folder; a path stays a path."""
+    """`lh1` -> configs/tasks/lh1.yaml beside the sweep's folder (else found as `detach-run`
+    finds a task name: the working directory's configs/, then detach's own); a path stays a path."""
     if name.endswith((".yaml", ".yml")):
         return (sweep_path.parent / name).resolve()
-    return (sweep_path.resolve().parent.parent / "tasks" / f"{name}.yaml")
+    beside = sweep_path.resolve().parent.parent / "tasks" / f"{name}.yaml"
+    if beside.exists():
+        return beside
+    try:
+        return find_config_file("tasks", name).resolve()
+    except ConfigError:
+        return beside  # the caller names the missing file with the sweep's file and line
 
 
 def load_sweep(path: Path, quick: bool = False, preset: str | None = None) -> SweepCfg:
@@ -241,7 +248,7 @@ def cell_commands(cell: Cell, previous: RunFolder | None, parent: RunFolder | No
             return [[*python, "--resume", str(previous.path), *common, *others, *([] if own else ["--no-eval"])]]
     init = [f"train.init_from={parent.path.resolve()}"] if parent is not None else []
     presets = [arg for p in cell.presets for arg in ("--preset", p)]
-    return [[*python, str(cell.task), "--model", cell.model, "--seed", str(cell.seed), "--out", str(out),
+    return [[*python, str(cell.task), "--model", cell.model, "--seed", str(cell.seed), "--runs", str(out),
              "--cell", cell.key, *presets, *common, *others, *([] if own else ["--no-eval"]),
              *cell.overrides, *init]]
 
