@@ -1,10 +1,16 @@
 """A run's MCAP log: the contract's JSON messages on its topics, readable up to a crash.
 
 Topics and message types: `detach.run_contract` (/metrics `MetricsMessage`, /scene
-`SceneMessage`, /episode/bodies `EpisodeFrame`), plus /tf with the same body poses as
-`foxglove.FrameTransforms`, so the file opens in Foxglove. Chunks are flushed after every
-metrics message and every `flush_every` frames, so a crashed run's log reads up to its last
-flush.
+`SceneMessage`, /episode/bodies `EpisodeFrame`), plus for Foxglove /tf with the same body (and
+dynamic object) poses as `foxglove.FrameTransforms` and /foxglove/scene with the scene and the
+character as `foxglove.SceneUpdate` entities (`detach.runs.foxglove`). Chunks are flushed after
+every metrics message and every `flush_every` frames, so a crashed run's log reads up to its
+last flush.
+
+Log times are wall-clock: /metrics and /scene at the moment they are written; a recorded
+episode's frames at its own place on the timeline, `origin + frame.time`, where each recorded
+(episode, trial) gets its own slot of `episode_slot_s` seconds after the previous recordings, so
+the evaluation's trials play one after another in Foxglove instead of all starting at t = 0.
 """
 
 from __future__ import annotations
@@ -13,12 +19,14 @@ import contextlib
 import json
 import os
 import secrets
+import time
 from pathlib import Path
 from typing import Any, BinaryIO, Iterator, Sequence
 
 from mcap.reader import NonSeekingReader
 from mcap.writer import CompressionType, Writer
 
+from detach.runs.foxglove import FOXGLOVE_SCENE_UPDATE, SCENE_UPDATE_TOPIC, scene_update
 from detach.run_contract import (
     EPISODE_TOPIC, MCAP_SCHEMAS, METRICS_TOPIC, SCENE_TOPIC, TEMP_SUFFIX, TF_TOPIC, EpisodeFrame, MetricsMessage,
     SceneMessage,
@@ -41,13 +49,22 @@ FOXGLOVE_FRAME_TRANSFORMS = {
 class RunLogWriter:
     """Append-only writer of a run's log.mcap (one writer per process)."""
 
+    episode_slot_s = 60.0
+    """Timeline room per recorded trial (episodes are capped at 40 s in the shipped tasks)."""
+
     def __init__(self, path: Path, flush_every: int = 30, append: bool = False,
-                 metrics_until: int | None = None) -> None:
+                 metrics_until: int | None = None, assets_root: Path | None = None) -> None:
         """`append=True` keeps the messages of an existing log (a resumed run): MCAP files
         cannot be appended to, so they are copied into a fresh file that replaces it.
         `metrics_until` (the resumed checkpoint's iteration) drops the /metrics messages of
-        later iterations: the run trains them again, and a log must hold each iteration once."""
+        later iterations: the run trains them again, and a log must hold each iteration once.
+        `assets_root`: where the scene's meshes are read to embed them in /foxglove/scene
+        (default: $DETACH_ASSETS or ./assets)."""
         self.path = Path(path)
+        self.assets_root = assets_root
+        self._origins: dict[tuple[int, int], int] = {}
+        self._episode_base: dict[int, int] = {}
+        self._timeline_end = 0
         previous = list(iter_messages(self.path)) if append and self.path.exists() else []
         if metrics_until is not None:
             previous = [(topic, time_ns, m) for topic, time_ns, m in previous
@@ -62,6 +79,8 @@ class RunLogWriter:
             self._channels[topic] = self._register(topic, schema["title"], schema)
         self._channels[TF_TOPIC] = self._register(TF_TOPIC, "foxglove.FrameTransforms",
                                                   FOXGLOVE_FRAME_TRANSFORMS)
+        self._channels[SCENE_UPDATE_TOPIC] = self._register(SCENE_UPDATE_TOPIC, "foxglove.SceneUpdate",
+                                                            FOXGLOVE_SCENE_UPDATE)
         self._frames_since_flush = 0
         self.flush_every = flush_every
         self._sequence = 0
@@ -69,6 +88,7 @@ class RunLogWriter:
             for topic, time_ns, message in previous:
                 if topic in self._channels:
                     self.write(topic, message, time_ns)
+                    self._timeline_end = max(self._timeline_end, time_ns)
             self._writer.flush()
             os.replace(tmp, self.path)
         except BaseException:
@@ -94,24 +114,47 @@ class RunLogWriter:
                     time_ns: int | None = None) -> None:
         """One /metrics message per iteration; flushed at once (the dashboard tails it)."""
         message = MetricsMessage(int(iteration), stage, dict(metrics))
-        self.write(METRICS_TOPIC, message.to_json(), time_ns if time_ns is not None else int(iteration))
+        self.write(METRICS_TOPIC, message.to_json(), time_ns if time_ns is not None else time.time_ns())
         self._writer.flush()
 
     def log_scene(self, scene: SceneMessage) -> None:
-        self.write(SCENE_TOPIC, scene.to_json(), 0)
+        """/scene and its /foxglove/scene twin, at the wall-clock time."""
+        from scene_builder.assets import default_assets_root
+
+        now = time.time_ns()
+        self.write(SCENE_TOPIC, scene.to_json(), now)
+        self.write(SCENE_UPDATE_TOPIC, scene_update(scene, self.assets_root or default_assets_root(), now), now)
         self._writer.flush()
 
+    def frame_time_ns(self, frame: EpisodeFrame) -> int:
+        """Where a frame sits on the timeline: its (episode, trial)'s origin + frame.time. An
+        episode number's trials get consecutive slots after everything logged so far (a
+        training recording, trial -1, the first)."""
+        key = (int(frame.episode), int(frame.trial))
+        origin = self._origins.get(key)
+        if origin is None:
+            base = self._episode_base.get(key[0])
+            if base is None:
+                base = max(time.time_ns(), self._timeline_end + 1_000_000_000)
+                self._episode_base[key[0]] = base
+            origin = self._origins[key] = base + int(max(key[1], 0) * self.episode_slot_s * 1e9)
+        return origin + int(round(frame.time * 1e9))
+
     def log_frame(self, frame: EpisodeFrame) -> None:
-        """One /episode/bodies frame plus its foxglove.FrameTransforms twin on /tf."""
-        time_ns = int(round(frame.time * 1e9))
+        """One /episode/bodies frame plus its foxglove.FrameTransforms twin on /tf (bodies and
+        dynamic objects)."""
+        time_ns = self.frame_time_ns(frame)
+        self._timeline_end = max(self._timeline_end, time_ns)
         data = frame.to_json()
         self.write(EPISODE_TOPIC, data, time_ns)
         stamp = {"sec": time_ns // 1_000_000_000, "nsec": time_ns % 1_000_000_000}
+        poses = [*zip(frame.bodies, data["pos"], data["quat"]),
+                 *((o["name"], o["pos"], o["quat"]) for o in (frame.objects or ()))]
         self.write(TF_TOPIC, {"transforms": [
             {"timestamp": stamp, "parent_frame_id": "world", "child_frame_id": name,
              "translation": {"x": p[0], "y": p[1], "z": p[2]},
              "rotation": {"x": q[1], "y": q[2], "z": q[3], "w": q[0]}}
-            for name, p, q in zip(frame.bodies, data["pos"], data["quat"])]}, time_ns)
+            for name, p, q in poses]}, time_ns)
         self._frames_since_flush += 1
         if self._frames_since_flush >= self.flush_every:
             self.flush()
