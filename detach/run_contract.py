@@ -332,7 +332,8 @@ class EpisodeFrame:
     """/episode/bodies: one frame of a recorded episode. `to_json` writes "episode" and
     "trial" first (readers may find a frame's episode without parsing the whole message).
     A recorded episode is (episode, trial): an evaluation records every trial under the
-    checkpoint's iteration, trial 0, 1, ... in the order the trials started."""
+    checkpoint's iteration, trial 0, 1, ... in the order the trials started; training
+    records env 0's next whole episode after each checkpoint as (its iteration, trial -1)."""
 
     episode: int
     frame: int

@@ -40,7 +40,7 @@ _REC = struct.Struct("<BQ")
 _MSG_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
 _DATA_AT = _REC.size + _MSG_HEAD.size
 """Offset of a message's payload from the start of its record."""
-_EPISODE_RE = re.compile(rb'\{"episode":(-?\d+)(?:,"trial":(\d+))?(?:,"frame":(\d+))?')
+_EPISODE_RE = re.compile(rb'\{"episode":(-?\d+)(?:,"trial":(-?\d+))?(?:,"frame":(\d+))?')
 """`EpisodeFrame.to_json` writes "episode", "trial" and "frame" first: a frame's recorded
 episode without parsing it (logs of earlier versions have no trial: trial 0)."""
 EpisodeKey = tuple[int, int]

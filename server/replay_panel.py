@@ -28,18 +28,21 @@ NO_RUNS = "(no runs)"
 def _describe(ep: Episode | None) -> str:
     if ep is None:
         return "no episode recorded in this run's log"
-    trial = f", trial {ep.trial}" if ep.trial else ""
+    trial = " (training)" if ep.trial < 0 else f", trial {ep.trial}" if ep.trial else ""
     return (f"episode {ep.number}{trial}: {ep.num_frames} frames, "
             f"{ep.times[-1] - ep.times[0]:.1f} s")
 
 
 def episode_options(keys: list[EpisodeKey]) -> dict[str, EpisodeKey]:
     """Dropdown text -> (episode, trial): '300' for an episode recorded once, '300 · trial 4'
-    for the trials of one evaluation (each trial is an episode of its own)."""
+    for the trials of one evaluation (each trial is an episode of its own), '300 · training'
+    for the training episode recorded after checkpoint 300."""
     trials: dict[int, int] = {}
-    for episode, _trial in keys:
-        trials[episode] = trials.get(episode, 0) + 1
-    return {(f"{e} · trial {t}" if trials[e] > 1 or t else str(e)): (e, t) for e, t in keys}
+    for episode, trial in keys:
+        if trial >= 0:
+            trials[episode] = trials.get(episode, 0) + 1
+    return {(f"{e} · training" if t < 0 else f"{e} · trial {t}" if trials[e] > 1 or t
+             else str(e)): (e, t) for e, t in keys}
 
 
 def replay_panel(s: Session) -> Panel:

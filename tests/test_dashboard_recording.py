@@ -42,3 +42,42 @@ def test_an_evaluation_records_every_trial_of_every_env(tmp_path: Path) -> None:
     assert all(2 <= n <= 31 for n in lengths), lengths
     ends = {tuple(np.round(tail.load_episode(k).pos[-1, 0, :2], 3)) for k in tail.episode_keys()}
     assert len(ends) > 1, "the trials are different episodes, not copies of one"
+
+
+def test_training_records_env_0s_next_whole_episode_after_each_checkpoint(tmp_path: Path) -> None:
+    """Item 10's training episodes: after checkpoint N, env 0's next episode from its frame 0
+    to its end is (N, training); nothing is recorded between one and the next checkpoint."""
+    from detach.eval.episodes import TRAINING_TRIAL, TrainingEpisodes
+    from server.replay_panel import episode_options
+
+    torch.set_num_threads(1)
+    cfg = resolve(ROOT / "configs/tasks/follow.yaml", "mlp",
+                  ["env.character=puppet", "env.episode_length=12"], seed=3)
+    env = make_env(cfg, num_envs=2, verbose=False)
+    policy = random_policy(env, torch.Generator().manual_seed(1))
+    path = tmp_path / "log.mcap"
+    ends = []
+    with RunLogWriter(path, flush_every=5) as log:
+        recorder = TrainingEpisodes(log)
+        obs = env.get_observations()
+        with torch.inference_mode():
+            for step in range(90):
+                if step in (3, 50):  # checkpoints 7 and 19 were saved
+                    recorder.start(7 if step == 3 else 19)
+                if step == 10:
+                    recorder.start(8)  # a checkpoint while recording: one episode at a time
+                obs, _r, dones, _e = env.step(policy(obs))
+                recorder.after_step(env, dones)
+                if bool(dones[0]):
+                    ends.append(step)
+    tail = LogTail(path)
+    tail.refresh()
+    assert tail.episode_keys() == [(7, TRAINING_TRIAL), (19, TRAINING_TRIAL)]
+    for key, after in ((7, 3), (19, 50)):
+        ep = tail.load_episode((key, TRAINING_TRIAL))
+        start = min(e for e in ends if e > after)  # env 0's first reset after the checkpoint
+        end = min(e for e in ends if e > start)
+        assert ep.num_frames == end - start, (key, ep.num_frames, start, end)
+        np.testing.assert_allclose(ep.times, np.arange(ep.num_frames) * env.dt, rtol=1e-6)
+    assert episode_options(tail.episode_keys()) == {"7 · training": (7, -1),
+                                                    "19 · training": (19, -1)}

@@ -5,6 +5,7 @@ their pooled runs, per-run rows and the paper's reference rows (defect 6, item 1
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -176,9 +177,21 @@ def test_tables_pool_what_detach_eval_tables_pools_and_say_which_runs(evals) -> 
     assert len(detach_rows) == 1 and len(skills.runs[detach_rows[0]]) == 2
     html = table_html(skills)
     assert "white-space:nowrap" in html and "Pooled runs" in html and "2 runs" in html
-    if "n" in skills.table.header:  # the number of trials pooled, with the seeds
-        n_col = skills.table.header.index("n")
-        assert "80" in str(skills.table.rows[detach_rows[0]][n_col])
+    n_col = skills.table.header.index("n")  # the number of trials pooled, with the seeds
+    assert str(skills.table.rows[detach_rows[0]][n_col]) == "80 (2 seeds)"
+
+
+def test_the_generalisation_csv_has_one_column_per_key_and_rounded_numbers(evals) -> None:
+    """Defect 6: the CSV had the Follow column twice and full-precision floats."""
+    for name, shown in build_tables(evals, per_run=True, paper=True).items():
+        header, *rows = [line.split(",") for line in table_csv(shown).splitlines()]
+        assert len(set(header)) == len(header), (name, header)
+        assert rows and all(len(r) == len(header) for r in rows)
+        numbers = [v for r in rows for v in r if re.fullmatch(r"-?\d+\.\d+", v)]
+        assert numbers and all(len(v.split(".")[1]) <= 4 for v in numbers), (name, numbers)
+    gen = build_tables(evals)["generalization"]
+    header = table_csv(gen).splitlines()[0].split(",")
+    assert header[:5] == ["experiment", "method", "follow", "carry", "follow_2"]
 
 
 def test_per_run_rows_and_the_papers_numbers(evals) -> None:
@@ -189,10 +202,9 @@ def test_per_run_rows_and_the_papers_numbers(evals) -> None:
     run_rows = [row for row, kind in zip(skills.table.rows, skills.kinds) if kind == "run"]
     assert all(str(row[0]).startswith("↳ label-") for row in run_rows)
     paper = {row[0]: row for row, kind in zip(skills.table.rows, skills.kinds) if kind == "paper"}
-    keys = skills.table.keys if getattr(skills.table, "keys", None) else None
-    if keys and "lh_mean" in keys:
-        assert paper["paper: DETACH"][keys.index("lh_mean")].value == 0.72
-        assert paper["paper: CML"][keys.index("follow")].value == 0.95
+    keys = skills.table.keys
+    assert paper["paper: DETACH"][keys.index("lh_mean")].value == 0.72
+    assert paper["paper: CML"][keys.index("follow")].value == 0.95
     gen = shown["generalization"]
     assert gen.kinds.count("paper") == len(GENERALIZATION)
     assert "swapped" in table_html(gen)

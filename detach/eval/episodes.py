@@ -38,6 +38,44 @@ def _frame(env, i: int, episode: int, trial: int, frame: int) -> EpisodeFrame:
                         snap.body_quat.tolist(), snap.objects, snap.subtask, snap.skill, trial)
 
 
+TRAINING_TRIAL = -1
+"""`EpisodeFrame.trial` of a training episode (evaluation trials are 0, 1, ...)."""
+
+
+class TrainingEpisodes:
+    """Records env 0's next whole episode after each checkpoint of a training run, as
+    (the checkpoint's iteration, `TRAINING_TRIAL`): the replay shows how the policy moved
+    while it learned, a few episodes per run, each from its frame 0."""
+
+    def __init__(self, recorder: EpisodeRecorder) -> None:
+        self.recorder = recorder
+        self.episode: int | None = None
+        """The episode being waited for or recorded (None: idle until the next checkpoint)."""
+        self.frame: int | None = None
+        """The next frame's number (None: waiting for env 0's current episode to end)."""
+
+    def start(self, iteration: int) -> None:
+        """After checkpoint `iteration`: record env 0's next episode (one at a time)."""
+        if self.episode is None:
+            self.episode, self.frame = iteration, None
+
+    def after_step(self, env, dones: torch.Tensor) -> None:
+        """Call after every env.step: a done of env 0 starts or ends the recording."""
+        if self.episode is None:
+            return
+        done = bool(dones.reshape(-1)[0])
+        if done and self.frame is not None:  # the recorded episode ended
+            self.recorder.flush()
+            self.episode = self.frame = None
+            return
+        if self.frame is None:
+            if not done:
+                return
+            self.frame = 0  # env 0 was reset: its new episode starts now
+        self.recorder.log_frame(_frame(env, 0, self.episode, TRAINING_TRIAL, self.frame))
+        self.frame += 1
+
+
 def run_evaluation(env, policy: Policy, trials: int, cfg: RunConfig, recorder: EpisodeRecorder | None = None,
                    progress: bool = True, episode_id: int = 0) -> EvalResult:
     """Roll out `trials` episodes (quota per env) and summarise them as an eval.json result.

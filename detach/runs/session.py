@@ -19,7 +19,7 @@ from detach.config import load_task
 from detach.config_validate import to_plain
 from detach.config_schema import RunConfig
 from detach.envs.lh_env import make_env
-from detach.eval.episodes import run_evaluation
+from detach.eval.episodes import TrainingEpisodes, run_evaluation
 from detach.eval.scene import scene_message
 from detach.models.factory import build_actor_critic
 from detach.run_contract import AGENT_PARAMS_FILE, checkpoint_iteration, eval_file
@@ -56,6 +56,7 @@ def train_and_evaluate(run: RunFolder, resume: bool, eval_tasks: Sequence[Path] 
                 print(load_initial_weights(runner, cfg), flush=True)
             log.log_scene(scene_message(env, cfg))
         runner.on_iteration = lambda it, _m: run.set_state("running", iteration=it + 1)
+        runner.episode_recorder = TrainingEpisodes(log)
         runner.learn(cfg.train.max_iterations)
     finally:
         log.close()
@@ -88,8 +89,8 @@ def evaluate_run(run: RunFolder, task_path: Path | None, checkpoint: Path | None
                  trials: int | None, device: str | None = None, record: bool = True) -> Path:
     """Evaluate the policy; writes eval.json (own task) or eval_<task>.json (another task).
 
-    On the run's own task (and with `record`) the scene and env 0's first episode go to
-    log.mcap; never pass record=True while another process still writes that log."""
+    On the run's own task (and with `record`) the scene and every trial go to log.mcap;
+    never pass record=True while another process still writes that log."""
     train_cfg = run.config()
     cfg = eval_config(train_cfg, task_path)
     device = device or cfg.device

@@ -105,6 +105,8 @@ def find_non_finite(it: int, step: int, **tensors: object) -> None:
 
 
 class DetachRunner(OnPolicyRunner):
+    episode_recorder = None
+    """A `detach.eval.episodes.TrainingEpisodes`: env 0's next episode after each checkpoint."""
 
     def __init__(self, env, train_cfg: dict, device: str = "cpu",
                  schedule: list[tuple[str, int]] | None = None,
@@ -280,6 +282,8 @@ class DetachRunner(OnPolicyRunner):
                     obs, rewards, dones, extras = self.env.step(actions.to(self.env.device))
                     if check:
                         find_non_finite(it, step, observations=obs, rewards=rewards, dones=dones.float())
+                    if self.episode_recorder is not None:
+                        self.episode_recorder.after_step(self.env, dones)
                     obs, rewards, dones = obs.to(self.device), rewards.to(self.device), dones.to(self.device)
                     self.alg.process_env_step(obs, rewards, dones, extras)
                     reward_sum += rewards.reshape(-1)
@@ -328,6 +332,8 @@ class DetachRunner(OnPolicyRunner):
                 saved = self.save_checkpoint()
                 if saved is not None:
                     self.logger.save_model(str(saved), it)  # W&B uploads it, as rsl-rl's learn does
+                if self.episode_recorder is not None and not last:
+                    self.episode_recorder.start(it)
             if self._stop_signal is not None:
                 bar.close()
                 signum, self._stop_signal = self._stop_signal, None
