@@ -1,0 +1,41 @@
+"""Add a reward term
+
+A skill's reward terms are functions of the `SkillContext` (the simulation state of every env,
+its target and distance) with a default weight; the config sets any weight as
+`rewards.terms.<skill>/<term>`. Here: an `upright` term for the follow skill.
+
+    python examples/03_add_reward_term.py
+"""
+
+import torch
+
+from detach.config import find_task_file, resolve
+from detach.envs.lh_env import make_env
+from detach.skills import RewardTerm, skill_class
+from detach.skills.context import SkillContext
+from detach.train.checks import complete_run_config
+
+
+def upright(ctx: SkillContext) -> torch.Tensor:
+    """1 when the root's z axis points up, 0 when it lies flat (in [0, 1] by convention)."""
+    w, x, y, _z = ctx.state.root_quat.unbind(-1)
+    up_z = 1 - 2 * (x * x + y * y)  # z component of the rotated z axis
+    return up_z.clamp(min=0)
+
+
+def main() -> None:
+    follow = skill_class("follow")
+    follow.reward_terms = {**follow.reward_terms, "upright": RewardTerm(upright, 0.1)}
+    try:
+        cfg = complete_run_config(resolve(find_task_file("follow"), "mlp",
+                                          ["env.character=puppet", "+rewards.terms.follow/upright=0.2"]))
+        env = make_env(cfg, num_envs=2, eval_mode=True)
+        assert "follow/upright" in env.rewards.active
+        _obs, reward, _dones, _extras = env.step(torch.zeros(env.num_envs, env.num_actions))
+        print(f"active terms: {sorted(env.rewards.active)}; reward after one step {reward.tolist()}")
+    finally:
+        follow.reward_terms = {k: v for k, v in follow.reward_terms.items() if k != "upright"}
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,63 @@
+"""The wheel works without the source tree: built here, installed into a fresh venv (no
+network: --no-deps, the dependencies seen through a .pth line to this environment's
+site-packages), run from another directory."""
+
+from __future__ import annotations
+
+import site
+import subprocess
+import sys
+import sysconfig
+import zipfile
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _run(cmd: list, cwd: Path, **kw) -> subprocess.CompletedProcess:
+    proc = subprocess.run([str(c) for c in cmd], cwd=cwd, capture_output=True, text=True, timeout=900, **kw)
+    assert proc.returncode == 0, f"{cmd}\n{proc.stdout[-2000:]}\n{proc.stderr[-3000:]}"
+    return proc
+
+
+@pytest.mark.slow
+def test_wheel_installs_and_runs_from_another_directory(tmp_path: Path) -> None:
+    dist = tmp_path / "dist"
+    _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "--no-index", "-q",
+          "-w", dist, ROOT], cwd=tmp_path)
+    (wheel,) = dist.glob("detach-*.whl")
+    names = set(zipfile.ZipFile(wheel).namelist())
+    for shipped in ("detach/configs/tasks/lh1.yaml", "detach/configs/tasks/base/lh.yaml",
+                    "detach/configs/models/detach.yaml", "detach/configs/sweeps/table1.yaml",
+                    "detach/motion/maps/cmu.yaml", "detach/py.typed", "server/py.typed"):
+        assert shipped in names, shipped
+    assert any(n.endswith(".dist-info/licenses/LICENSE") for n in names)
+    metadata = zipfile.ZipFile(wheel).read(next(n for n in names if n.endswith(".dist-info/METADATA"))).decode()
+    assert "Requires-Dist: embreex==4.4.0.post1; platform_machine != \"aarch64\"" in metadata
+    assert "Requires-Dist: lz4==" in metadata and "Requires-Dist: zstandard==" in metadata
+
+    venv = tmp_path / "venv"
+    _run([sys.executable, "-m", "venv", "--without-pip", venv], cwd=tmp_path)
+    python = venv / "bin" / "python"
+    _run([sys.executable, "-m", "pip", "--python", python, "install", "--no-deps", "--no-index", "-q", wheel],
+         cwd=tmp_path)
+    purelib = Path(_run([python, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                        cwd=tmp_path).stdout.strip())
+    ours = {sysconfig.get_paths()["purelib"], *site.getsitepackages()}
+    (purelib / "zz_dependencies.pth").write_text("".join(f"{p}\n" for p in sorted(ours)))
+
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    where = _run([python, "-c", "import detach.config as c; print(c.__file__); print(c.builtin_configs())"],
+                 cwd=elsewhere).stdout.split()
+    assert all(Path(w).is_relative_to(venv) for w in where), where  # the wheel's, not the checkout's
+    out = _run([venv / "bin" / "detach-run", "train", "lh1", "--model", "mlp", "--dry-run", "--runs", "out"],
+               cwd=elsewhere).stdout
+    assert out.splitlines()[-1].startswith("# run folder: out/") and out.splitlines()[-1].endswith("-lh1-mlp-s0")
+    user = _run([venv / "bin" / "detach-run", "train", ROOT / "configs/tasks/follow.yaml", "--model",
+                 ROOT / "configs/models/mlp.yaml", "--dry-run"], cwd=elsewhere).stdout  # user configs by path
+    assert user.splitlines()[-1].endswith("-follow-mlp-s0")
+    keys = _run([venv / "bin" / "detach-run", "keys", "sim"], cwd=elsewhere).stdout
+    assert "sim.num_envs: int" in keys
