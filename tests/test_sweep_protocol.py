@@ -4,15 +4,18 @@ and `train.init_from`, through the `detach-run` CLI on tiny puppet runs."""
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 
 import pytest
 import torch
 
 from detach import cli
+from detach.runs.curves import run_curve
 from detach.runs.folder import find_runs
 from detach.runs.sweep import _lock_path, cells, file_lock, load_sweep
 
@@ -70,8 +73,17 @@ def test_a_sweep_runs_its_stages_in_order_each_starting_from_the_last(tmp_path: 
     assert cli.main(["table", str(sweep), "--runs", str(out)]) == 2, "the default cells were never run"
     assert "no eval.json found" in capsys.readouterr().err
     assert cli.main(["table", str(sweep), "--runs", str(out), "--preset", "tiny"]) == 0
-    table = (out / "tables" / "mini_skills.md").read_text()
+    table = (out / "tables" / "mini.md").read_text()
     assert "LH1 (mean)" in table and "LH1 (chain)" in table and "| MLP |" in table
+    # learning curves beside the table, one figure per stage, from the runs' logs
+    for stage, run in runs.items():  # a stage whose 2 iterations ended no episode has nothing to draw
+        curve = run_curve(run, "mlp", 0)
+        png = out / "tables" / f"curves_{stage}.png"
+        assert png.exists() == (curve is not None), stage
+        if curve is not None:
+            assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+            assert curve.label == "mlp s0" and curve.iterations == [0, 1]
+            assert all(len(v) == 2 for v in curve.values.values())
     # an evaluation the sweep asks for that a finished cell lacks is run, without training again
     lh1 = runs["lh1"]
     (lh1.path / "eval_lh2.json").unlink()
@@ -201,3 +213,31 @@ def test_init_from_copies_weights_normalisers_and_discriminator(tmp_path: Path) 
     disc = runner.alg.discriminators.state_dict()
     assert all(torch.equal(disc[k], saved["discriminator_state_dict"][k]) for k in disc)
     assert runner.completed_iteration == -1, "a run started from another one counts its own iterations"
+
+
+def test_sigterm_to_a_sweep_interrupts_its_running_cell_and_ends_the_sweep(tmp_path: Path) -> None:
+    """`kill SWEEP_PID` (a scheduler's stop) reaches the cell being trained: it checkpoints and
+    is `interrupted`, and the sweep exits 130 at once instead of waiting for the cell to end."""
+    long = [*TINY[:-1], "train.max_iterations=100000", "train.save_interval=100000"]
+    sweep = write_sweep(tmp_path, extra=f"  long: {{eval_trials: 2, overrides: [{', '.join(long)}]}}\n")
+    out = tmp_path / "runs"
+    proc = subprocess.Popen([sys.executable, "-m", "detach.cli", "--sweep", str(sweep), "--preset", "long",
+                             "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 240
+        while time.monotonic() < deadline:  # until the cell has trained an iteration
+            runs = find_runs(out)
+            if runs and runs[0].status().iteration >= 1:
+                break
+            time.sleep(0.5)
+        else:
+            pytest.fail("the sweep's cell never trained an iteration")
+        proc.send_signal(signal.SIGTERM)
+        code = proc.wait(timeout=90)
+    finally:
+        proc.kill()
+    assert code == 130, proc.stderr.read()
+    status = find_runs(out)[0].status()
+    assert status.state == "interrupted", status
+    assert status.iteration < 100000
+    assert list((find_runs(out)[0].path / "checkpoints").glob("model_*.pt"))

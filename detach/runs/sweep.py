@@ -27,9 +27,11 @@ import fcntl
 import hashlib
 import json
 import os
+import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections import deque
 from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
@@ -285,10 +287,24 @@ def _lock_path(out: Path, name: str) -> Path:
 
 
 # ------------------------------------------------------------------------------- running
+_CHILDREN: set[subprocess.Popen] = set()
+"""Cell processes of this sweep now running: a stopped sweep passes its SIGTERM on to them."""
+_STOPPING = threading.Event()
+
+
 def _run_command(cmd: list[str], cwd: str, env: dict[str, str] | None = None) -> tuple[int, str]:
     """(exit code, the last lines of stderr)."""
+    if _STOPPING.is_set():
+        from detach.runs.job import EXIT_INTERRUPTED
+
+        return EXIT_INTERRUPTED, "the sweep was stopped"
     with tempfile.TemporaryFile("w+b") as err:  # a file, not a pipe: hours of progress bar stay on disk
-        proc = subprocess.run(cmd, cwd=cwd, env=env, stdout=subprocess.DEVNULL, stderr=err)
+        proc = subprocess.Popen(cmd, cwd=cwd, env=env, stdout=subprocess.DEVNULL, stderr=err)
+        _CHILDREN.add(proc)
+        try:
+            proc.wait()
+        finally:
+            _CHILDREN.discard(proc)
         return proc.returncode, stderr_tail(err)
 
 
@@ -305,6 +321,15 @@ def stderr_tail(err: BinaryIO, lines: int = TAIL_LINES, max_bytes: int = 64 * 10
     text = err.read().decode("utf-8", "replace")
     shown = [line.rstrip("\r").rsplit("\r", 1)[-1].rstrip() for line in text.split("\n")]
     return "\n".join([line for line in shown if line][-lines:])
+
+
+def _stop_children() -> None:
+    """SIGTERM to every running cell (each checkpoints and ends `interrupted`); no new cell or
+    command starts. Ctrl-C reaches the cells by itself (same process group); SIGTERM does not."""
+    _STOPPING.set()
+    for proc in list(_CHILDREN):
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
 
 
 def _cell_env(jobs: int) -> dict[str, str]:
@@ -560,7 +585,8 @@ def _run_graph(sweep: SweepCfg, sweep_path: Path, out: Path, jobs: int, device: 
                     print(f"[{finished}/{total}] {cell.key}: FAILED (exit {code}; "
                           f"{_progress(finished, total, started)})"
                           + "".join(f"\n    | {line}" for line in tail.splitlines()), flush=True)
-    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: jobs on a cluster do not see the sweep's signal
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM (detach.cli turns SIGTERM into KeyboardInterrupt)
+        _stop_children()
         if isinstance(pool, _SubmititPool):
             pool.cancel()
         raise

@@ -76,6 +76,7 @@ def print_table(source: Path, runs_dir: Path, kind: str | None, out: Path | None
     if source.is_dir():
         evals, kinds, name = collect_evals(find_runs(source)), [kind] if kind else list(TABLES), source.name
         out = out or source / "tables"
+        curves = None
     else:
         from detach.runs.sweep import cell_keys, load_sweep
 
@@ -83,13 +84,14 @@ def print_table(source: Path, runs_dir: Path, kind: str | None, out: Path | None
         evals = collect_evals(find_runs(runs_dir), cell_keys(source, preset))
         kinds, name = [kind or sweep.table], sweep.name
         out = out or runs_dir / "tables"
+        curves = _sweep_runs(find_runs(runs_dir), cell_keys(source, preset))
     if not evals:
         raise ConfigError("no eval.json found (train and evaluate runs first)", str(source))
     for k in kinds:
         table = render(k, evals, task, sgr_variant)
         markdown = table.to_markdown()
         print(markdown)
-        stem = out / f"{name}_{k}"
+        stem = out / (name if curves is not None else f"{name}_{k}")  # a sweep has one table
         files = {stem.with_suffix(".md"): markdown, stem.with_suffix(".csv"): table.to_csv(),
                  stem.with_name(f"{stem.name}_ci.csv"): table.to_ci_csv(), stem.with_suffix(".tex"): table.to_latex()}
         try:
@@ -99,4 +101,23 @@ def print_table(source: Path, runs_dir: Path, kind: str | None, out: Path | None
             raise ConfigError(f"cannot write the table files ({exc.strerror or exc}); expected a writable "
                               f"--out folder", str(out)) from None
         print(f"written: {stem}.md, .csv, _ci.csv, .tex\n")
+    if curves:
+        from detach.runs.curves import write_sweep_curves
+
+        title = f"{name}" + (f" [{preset}]" if preset else "")
+        for path in write_sweep_curves(curves, out, title, _stderr):
+            print(f"written: {path}")
     return 0
+
+
+def _sweep_runs(runs: list[RunFolder], cells: set[str]) -> dict[str, RunFolder]:
+    """Cell key -> its run folder (the newest, when a cell was trained twice)."""
+    found: dict[str, RunFolder] = {}
+    for run in sorted(runs, key=lambda r: r.path.name):  # run folder names start with their date
+        try:
+            cell = run.status().cell
+        except (OSError, ValueError):
+            continue
+        if cell in cells:
+            found[cell] = run
+    return found

@@ -1,0 +1,129 @@
+"""Learning curves of a sweep's runs as PNG files, drawn from each run's log.mcap.
+
+`detach-run table SWEEP --out DIR` writes one figure per stage of the protocol
+(`curves_<stage>.png`: Follow, Carry, LH1, ...), a panel per metric (mean reward, episode
+length and each success rate the environment logged), one line per model and seed, so a table
+comes with the training that produced it. matplotlib draws them (the `plots` extra); without it
+the tables are still written and a line says why the plots are not.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+from detach.runs.folder import RunFolder
+from detach.runs.mcap_log import read_metrics
+
+Report = Callable[[str], None]
+
+PANELS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("mean reward", ("Train/mean_reward", "reward/mean")),
+    ("episode length", ("Train/mean_episode_length", "Episode/length", "episode/length")),
+)
+"""(panel title, metric names in the order tried): the first name a log has is drawn."""
+SUCCESS_PREFIXES = ("Episode_Success/", "Success/")
+"""Success fractions of the episodes that ended in an iteration (the second: logs written before
+the rsl-rl naming)."""
+SMOOTH = 10
+"""Iterations in the trailing mean drawn over the raw (faint) values: success rates of the
+episodes that ended in one iteration are noisy."""
+
+
+@dataclass(frozen=True)
+class Curve:
+    label: str
+    """`<model> s<seed>`."""
+    iterations: list[int]
+    values: dict[str, list[float]]
+    """panel title -> one value per iteration (NaN where the iteration did not log it)."""
+
+
+def run_curve(run: RunFolder, model: str, seed: int) -> Curve | None:
+    """The panels' series of one run; None when its log has no metrics yet."""
+    try:
+        metrics = read_metrics(run.log_path)
+    except (OSError, ValueError):
+        return None
+    if not metrics:
+        return None
+    names = {k for m in metrics for k in m}
+    chosen = {title: next((n for n in candidates if n in names), None) for title, candidates in PANELS}
+    for prefix in SUCCESS_PREFIXES:
+        chosen.update({f"success: {n.removeprefix(prefix)}": n for n in sorted(names) if n.startswith(prefix)})
+    values = {title: [float(m.get(name, float("nan"))) for m in metrics]
+              for title, name in chosen.items() if name is not None}
+    if not values:  # no episode ended yet
+        return None
+    return Curve(f"{model} s{seed}", [int(m["iteration"]) for m in metrics], values)
+
+
+def _trailing_mean(values: list[float], window: int) -> list[float]:
+    out, kept = [], []
+    for v in values:
+        if v == v:  # not NaN
+            kept.append(v)
+        kept = kept[-window:]
+        out.append(sum(kept) / len(kept) if kept else float("nan"))
+    return out
+
+
+def plot_stage(stage: str, curves: list[Curve], path: Path, title: str) -> None:
+    """One figure: a panel per metric any curve has, a line per curve."""
+    import matplotlib
+
+    matplotlib.use("Agg")  # files only, no display
+    import matplotlib.pyplot as plt
+
+    panels = list(dict.fromkeys(t for c in curves for t in c.values))
+    cols = min(3, len(panels))
+    rows = -(-len(panels) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.0 * rows), squeeze=False)
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for ax, panel in zip(axes.flat, panels):
+        for i, curve in enumerate(curves):
+            if panel not in curve.values:
+                continue
+            colour = colours[i % len(colours)]
+            ax.plot(curve.iterations, curve.values[panel], ".", color=colour, alpha=0.3, markersize=2.5)
+            ax.plot(curve.iterations, _trailing_mean(curve.values[panel], SMOOTH), color=colour,
+                    linewidth=1.6, label=curve.label)
+        ax.set_title(panel, fontsize=10)
+        ax.set_xlabel("PPO iteration", fontsize=8)
+        ax.tick_params(labelsize=8)
+        ax.grid(alpha=0.3)
+        if panel.startswith("success"):
+            ax.set_ylim(-0.02, 1.02)
+    for ax in list(axes.flat)[len(panels):]:
+        ax.axis("off")
+    axes.flat[0].legend(fontsize=8)
+    fig.suptitle(f"{title}: {stage} (dots: per iteration; line: mean of the last {SMOOTH} logged)", fontsize=11)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+    tmp.replace(path)
+
+
+def write_sweep_curves(runs: dict[str, RunFolder], out: Path, title: str, report: Report) -> list[Path]:
+    """`runs`: sweep cell key (`<stage>/<model>/s<seed>/<digest>`) -> its run folder. Writes
+    `out/curves_<stage>.png` for each stage with a logged run; returns the files written."""
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        report("learning curves not drawn: matplotlib is not installed (pip install 'detach[plots]')")
+        return []
+    by_stage: dict[str, list[Curve]] = {}
+    for key, run in sorted(runs.items()):
+        stage, model, seed = key.split("/")[:3]
+        curve = run_curve(run, model, int(seed.removeprefix("s")))
+        if curve is not None:
+            by_stage.setdefault(stage, []).append(curve)
+    written = []
+    for stage, curves in by_stage.items():
+        path = out / f"curves_{stage}.png"
+        plot_stage(stage, curves, path, title)
+        written.append(path)
+    return written

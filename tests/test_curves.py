@@ -1,0 +1,29 @@
+"""Learning curves drawn from a run's log (`detach-run table SWEEP --out DIR` writes them)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from detach import cli
+from detach.runs.curves import run_curve, write_sweep_curves
+from detach.runs.folder import find_runs
+
+TINY = ["env.character=puppet", "sim.num_envs=4", "train.num_steps_per_env=8", "env.episode_length=6",
+        "train.max_iterations=4", "--no-eval"]
+
+
+def test_curves_of_a_run_are_its_logged_metrics_drawn_per_stage(tmp_path: Path) -> None:
+    out = tmp_path / "runs"
+    assert cli.main(["configs/tasks/follow.yaml", "--model", "mlp", "--out", str(out), *TINY]) == 0
+    run = find_runs(out)[0]
+    curve = run_curve(run, "mlp", 0)
+    assert curve is not None and curve.label == "mlp s0" and curve.iterations == [0, 1, 2, 3]
+    assert {"mean reward", "episode length", "success: 0_follow"} <= set(curve.values)
+    lengths = [v for v in curve.values["episode length"] if v == v]
+    assert lengths and all(0 < v <= 6 for v in lengths)  # episodes of at most 6 steps ended
+    notes: list[str] = []
+    written = write_sweep_curves({"follow/mlp/s0/abc": run, "carry/mlp/s0/def": run}, tmp_path / "plots",
+                                 "mini", notes.append)
+    assert sorted(p.name for p in written) == ["curves_carry.png", "curves_follow.png"] and not notes
+    assert all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and p.stat().st_size > 10_000 for p in written)
+    assert not list((tmp_path / "plots").glob(".*.tmp"))
