@@ -91,7 +91,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="cap on collision hulls per object (default 16)")
     b.add_argument("--max-hull-vertices", type=int, default=64, metavar="N",
                    help="vertices per hull (default 64)")
-    b.add_argument("--seed", type=int, default=0, help="CoACD seed (default 0)")
+    b.add_argument("--coacd-seed", "--seed", dest="seed", type=int, default=0, metavar="N",
+                   help="CoACD seed (default 0; --seed is the earlier spelling: detach-run's --seed is the run seed)")
     b.add_argument("--ray-engine", choices=("auto", *ENGINES), default="auto",
                    help="height-map ray caster: auto = embree when embreex is installed, else numpy")
     b.add_argument("--grid", choices=GRIDS, default="centres",

@@ -123,3 +123,10 @@ def test_every_subcommand_has_help_and_a_readme_row(command: str, capsys: pytest
     readme = (ROOT / "README.md").read_text()
     assert f"`detach-run {command}" in readme
     assert f"detach-run {command}" in cli.DESCRIPTION
+
+
+def test_scene_seed_is_named_for_coacd() -> None:
+    from scene_builder.cli import _parser
+
+    assert _parser().parse_args(["build", "--coacd-seed", "3"]).seed == 3
+    assert _parser().parse_args(["build", "--seed", "3"]).seed == 3  # the earlier spelling
