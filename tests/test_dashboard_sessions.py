@@ -180,9 +180,7 @@ def test_tables_show_n_and_which_runs_were_pooled(runs: Path) -> None:
         assert "paper: DETACH" in text and "white-space:nowrap" in text
         client.set("One row per run", True)
         client.wait_for(lambda: "↳ mlp lh1 s0" in client.text(), what="the per-run rows")
-        if "<th style='padding:2px 6px;white-space:nowrap;border-bottom:1px solid #e4e4e4;" \
-           "text-align:left'>n</th>" in client.text():
-            assert "40 (1 seed)" in client.text()
+        assert "text-align:left'>n</th>" in client.text() and "40 (1 seed)" in client.text()
     finally:
         client.close()
         server.stop()
@@ -329,6 +327,46 @@ def test_run_details_diff_and_a_second_run_beside_the_first(runs: Path) -> None:
         client.click("Step", "frame ▶")
         time.sleep(0.5)
         assert not session.replay.player.playing, "a step pauses"
+    finally:
+        client.close()
+        server.stop()
+
+
+def test_the_replay_lists_and_plays_each_trial_of_an_evaluation(runs: Path) -> None:
+    """Issue 22 item 10: an evaluation records every trial as (episode, trial); the Episode
+    dropdown lists each one and choosing a trial plays that trial, not trial 0 or another
+    evaluation's episode."""
+    run = sorted(runs.iterdir())[0]
+    lengths = {0: 7, 1: 9, 2: 5}
+    with RunLogWriter(run / "log.mcap", append=True) as log:
+        for f in range(max(lengths.values())):  # all envs at once: trials interleave
+            for trial, n in lengths.items():
+                if f < n:
+                    pos = np.full((15, 3), float(trial))
+                    log.log_frame(EpisodeFrame(20, f, f / 30, list(BODY_NAMES), pos.tolist(),
+                                               np.tile([1.0, 0, 0, 0], (15, 1)).tolist(),
+                                               trial=trial))
+    server, dashboard, url = start_dashboard(runs)
+    client = _connect(url, dashboard, 1)
+    try:
+        replay = _session(dashboard).replay
+        client.set("Run", run.name)
+        client.wait_for(lambda: "20 · trial 2" in client.props("Episode")["options"],
+                        what="the trials in the Episode dropdown")
+        assert client.props("Episode")["options"] == [
+            "newest", "0", "20 · trial 0", "20 · trial 1", "20 · trial 2"]
+        for choice, trial in (("20 · trial 1", 1), ("20 · trial 0", 0), ("20 · trial 2", 2)):
+            client.set("Episode", choice)
+            client.wait_for(lambda: replay.episode is not None
+                            and (replay.episode.number, replay.episode.trial) == (20, trial),
+                            what=f"trial {trial}")
+            assert replay.episode.num_frames == lengths[trial]
+            assert np.allclose(replay.episode.pos, trial), "that trial's own frames"
+        client.wait_for(lambda: f"episode 20, trial 2: {lengths[2]} frames" in client.text(),
+                        what="the description")
+        client.set("Episode", "0")
+        client.wait_for(lambda: replay.episode.number == 0 and replay.episode.num_frames == 12,
+                        what="the training episode")
     finally:
         client.close()
         server.stop()
