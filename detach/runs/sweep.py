@@ -474,6 +474,10 @@ def _run_commands(cmds: list[list[str]], cwd: str, env: dict[str, str] | None = 
     return 0, ""
 
 
+OWNER_POLL_S = 5.0
+"""How often a sweep looks again at a cell that another live process is training."""
+
+
 @dataclass
 class _Work:
     """A callable running one cell under its lock (attributes for the Ray launcher)."""
@@ -486,7 +490,23 @@ class _Work:
     cwd: str = field(default_factory=os.getcwd)
 
     def commands(self) -> list[list[str]]:
-        runs = existing_runs(self.out)  # re-read: another sweep may have run the cell meanwhile
+        """What brings the cell to done, decided once no other live process owns its run. The
+        cell lock does not cover every owner (a sweep whose driver was killed leaves its cell
+        training; a run started by hand with --cell; Ray and Slurm sweeps take no cell lock):
+        starting it again would train it twice, resuming it would be refused as alive."""
+        said = False
+        while True:
+            runs = existing_runs(self.out)  # re-read: another sweep may have run the cell meanwhile
+            previous = runs.get(self.cell.key)
+            if previous is None or _STOPPING.is_set() or not previous.owner_alive():
+                break
+            if not said:
+                status = previous.status()
+                where = f" on {status.host}" if status.host else ""
+                print(f"waiting: {self.cell.key} is running in process {status.pid}{where} "
+                      f"({previous.path})", flush=True)
+                said = True
+            time.sleep(OWNER_POLL_S)
         parent = runs.get(self.cell.parent) if self.cell.parent else None
         return cell_commands(self.cell, runs.get(self.cell.key), parent, self.out, self.trials, self.device)
 
