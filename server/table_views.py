@@ -140,7 +140,7 @@ def table_html(shown: ShownTable, labels: dict[str, str] | None = None) -> str:
         parts.append(f"<tr style='{ROW_STYLE[kind]}'>" + "".join(
             f"<td style='{cell}'>{_cell_html(c)}</td>" for c in row) + "</tr>")
     parts.append("</table></div>")
-    if not t.rows:
+    if "pooled" not in shown.kinds:  # the paper's rows alone must not look like results
         parts.append("<p><i>(no evaluations for this table among these runs)</i></p>")
     pooled = [(i, runs) for i, runs in sorted(shown.runs.items())]
     if pooled:

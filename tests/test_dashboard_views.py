@@ -214,6 +214,16 @@ def test_per_run_rows_and_the_papers_numbers(evals) -> None:
     assert "paper: DETACH" in "\n".join(csv)
 
 
+def test_a_table_with_only_the_papers_rows_says_it_pooled_nothing(evals) -> None:
+    """Runs whose evaluations fit no table (e.g. a follow-only run) leave the paper's rows
+    alone in it: the table says that none of the pooled runs is in it."""
+    for name, shown in build_tables([], paper=True).items():
+        assert shown.kinds and set(shown.kinds) == {"paper"}
+        assert "no evaluations for this table" in table_html(shown), name
+    for name, shown in build_tables(evals, paper=True).items():
+        assert "no evaluations for this table" not in table_html(shown), name
+
+
 def test_paper_numbers_are_consistent_with_the_papers_definitions() -> None:
     """LH is the mean of the subtask rates, EGR = LH / LH1 (which shows that the paper's
     Table II headers SGR./EGR. are swapped), and Table III repeats DETACH on LH3."""
