@@ -82,3 +82,44 @@ def test_a_bad_eval_json_is_left_out_with_a_line_and_the_rest_still_counts(
     rows = {line.split()[0]: line.split() for line in out.splitlines()[1:] if not line.startswith(" ")}
     assert rows[good.path.name][-1] == "0.25" and rows[bad.path.name][-1] == "invalid"
     assert f"{bad.path.name}: eval.json ignored:" in out
+
+
+BAD_STATUS = {
+    "binary": b"\x00\x01garbage",
+    "not json": b"{state: running",
+    "a list": b"[1, 2]",
+    "unknown state": b'{"state": "sleeping"}',
+    "pid as text": b'{"state": "running", "pid": "x"}',
+}
+
+
+@pytest.mark.parametrize("name", sorted(BAD_STATUS))
+def test_a_broken_status_json_is_one_line_naming_the_file_and_hides_no_other_run(
+        name: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    good = _run(tmp_path, _eval(0.25))
+    bad = _run(tmp_path, _eval(0.75))
+    bad.status_path.write_bytes(BAD_STATUS[name])
+    assert cli.main(["list", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    rows = {line.split()[0]: line.split() for line in out.splitlines()[1:] if not line.startswith(" ")}
+    assert rows[good.path.name][-1] == "0.25" and rows[bad.path.name][4] == "unreadable"
+    (note,) = [line for line in out.splitlines() if line.startswith(f"  {bad.path.name}:")]
+    assert "status.json" in note and ("expected" in note or "must be" in note), note
+    assert cli.main(["--resume", str(bad.path)]) == 2  # no checkpoint: one line, nothing written
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+    assert bad.status_path.read_bytes() == BAD_STATUS[name]
+
+
+def test_a_run_folder_without_config_yaml_is_listed_and_refused_in_one_line(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    good = _run(tmp_path, _eval(0.25))
+    bad = _run(tmp_path, _eval(0.75))
+    bad.config_path.unlink()
+    assert cli.main(["list", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert f"  {bad.path.name}: ConfigError: {bad.config_path}: file not found" in out
+    assert any(line.split()[0] == good.path.name and line.split()[-1] == "0.25" for line in out.splitlines())
+    for argv in (["--resume", str(bad.path)], ["--eval", str(bad.path)]):
+        assert cli.main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err == [f"detach-run: error: {bad.path}: not a run folder (no config.yaml)"]

@@ -72,6 +72,10 @@ def read_json(path: Path) -> Any:
         return json.loads(data)
     except RecursionError:
         raise ValueError(f"{path.name}: nested too deeply") from None
+    except UnicodeDecodeError:  # json.loads guesses UTF-8/16/32 from the bytes; say what was expected
+        raise ValueError(f"{path.name}: expected UTF-8 JSON, found undecodable bytes") from None
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path.name}: expected JSON, {exc}") from None
 
 
 def _overwrite_in_place(path: Path, text: str) -> None:
