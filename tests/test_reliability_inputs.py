@@ -36,6 +36,9 @@ def _one_line(capsys: pytest.CaptureFixture[str]) -> str:
     (["sim.physics_dt=0"], "sim.physics_dt: expected a value > 0, found 0"),
     (["train.keep_checkpoints.last=-1"], "train.keep_checkpoints.last: expected a value >= 0, found -1"),
     (["train.learning_rate=.nan"], "train.learning_rate: expected a value > 0, found nan"),
+    (["sim.physics_dt=.inf"], "sim.physics_dt: expected a finite value > 0, found inf"),
+    (["train.max_grad_norm=-.inf"], "train.max_grad_norm: expected a finite value > 0, found -inf"),
+    (["train.amp.grad_penalty=.inf"], "train.amp.grad_penalty: expected a finite value >= 0, found inf"),
 ])
 def test_bad_numbers_are_one_line_and_create_nothing(extra: list[str], message: str, tmp_path: Path,
                                                     capsys: pytest.CaptureFixture[str]) -> None:
@@ -58,9 +61,12 @@ def test_an_out_folder_that_cannot_be_written_is_one_line(tmp_path: Path,
     blocker.write_text("not a folder")
     assert cli.main([FOLLOW, "--model", "mlp", "--out", str(blocker / "runs"), *TINY]) == 2
     line = _one_line(capsys)
-    assert f"cannot create a run folder under --out {blocker / 'runs'}" in line
+    assert f"cannot create a run folder under --runs {blocker / 'runs'}" in line
+    assert cli.main([FOLLOW, "--model", "mlp", "--out", str(blocker), *TINY]) == 2  # --out is a file
+    assert f"cannot create a run folder under --runs {blocker}" in _one_line(capsys)
+    assert blocker.read_text() == "not a folder"
     assert cli.main([FOLLOW, "--model", "mlp", "--out", "/proc/detach-runs", *TINY]) == 2
-    assert "cannot create a run folder under --out /proc/detach-runs" in _one_line(capsys)
+    assert "cannot create a run folder under --runs /proc/detach-runs" in _one_line(capsys)
 
 
 def test_a_run_folder_is_all_or_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,

@@ -141,7 +141,7 @@ def test_list_shows_runs_and_unreadable_folders(tmp_path: Path,
     (["--resume", "/nonexistent/run"], "not a run folder"),
     (["--eval", "/nonexistent/run"], "run folder or checkpoint not found"),
     (["table", "/nonexistent/sweep.yaml"], "sweep file or runs folder not found"),
-    ([], "missing TASK_YAML"),
+    ([], "missing TASK"),
 ])
 def test_bad_invocations_are_one_line_errors(argv: list[str], message: str,
                                              capsys: pytest.CaptureFixture[str]) -> None:
