@@ -199,7 +199,8 @@ def check_ranges(cfg: RunConfig) -> None:
         for part in dotted.split("."):
             value = getattr(value, part, None)
         if isinstance(value, (int, float)) and not isinstance(value, bool) and not allowed.admits(value):
-            path, message = tuple(dotted.split(".")), f"expected a value {allowed.describe()}, found {value}"
+            finite = "finite " if value in (float("inf"), float("-inf")) else ""
+            path, message = tuple(dotted.split(".")), f"expected a {finite}value {allowed.describe()}, found {value}"
             if path in cfg.origin.prov:
                 raise cfg.origin.error(path, message)
             raise ConfigError(message, "<command line>", None, path)  # e.g. --seed: in no file

@@ -340,7 +340,7 @@ class Range:
     open_high: bool = False
 
     def admits(self, value: float) -> bool:
-        if value != value:  # NaN
+        if value != value or value in (float("inf"), float("-inf")):  # NaN, or an end no setting can use
             return False
         if self.low is not None and (value <= self.low if self.open_low else value < self.low):
             return False
