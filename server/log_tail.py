@@ -143,7 +143,12 @@ class LogTail:
             before = (len(self.metrics), len(self.chunks), self.scene is not None,
                       self.complete)
             with open(self.path, "rb") as f:
-                self._scan(f, st.st_size)
+                try:
+                    self._scan(f, st.st_size)
+                except (struct.error, IndexError, ValueError) as exc:  # a record cut or zeroed
+                    self.problem = self.problem or (
+                        f"{self.path.name}: corrupt record near byte {self.offset} ({exc}); "
+                        f"showing what was read before it")
             changed = before != (len(self.metrics), len(self.chunks),
                                  self.scene is not None, self.complete)
             if changed:
@@ -287,6 +292,10 @@ class LogTail:
 
     def _message(self, records: bytes, at: int) -> None:
         """Parse one /metrics or /scene message record at `at` (others are ignored)."""
+        if not 0 <= at <= len(records) - _DATA_AT:
+            self.problem = self.problem or (
+                f"{self.path.name}: a message index points past its chunk; message skipped")
+            return
         _op, length = _REC.unpack_from(records, at)
         channel, _sequence, log_time, _publish = _MSG_HEAD.unpack_from(records, at + _REC.size)
         topic = self.channels.get(channel)
@@ -355,6 +364,8 @@ class LogTail:
 
     @staticmethod
     def _payload(records: bytes, at: int) -> dict[str, Any] | None:
+        if not 0 <= at <= len(records) - _DATA_AT:
+            return None  # an index pointing past its chunk
         _op, length = _REC.unpack_from(records, at)
         try:
             msg = json.loads(records[at + _DATA_AT: at + _REC.size + length])

@@ -195,7 +195,9 @@ def test_tail_reports_garbage_and_bad_chunks_without_raising(tmp_path: Path) -> 
     path = tmp_path / "log.mcap"
     _write_log(path, episodes=1)
     data = bytearray(path.read_bytes())
-    mid = len(data) // 2
+    data_end = data.rfind(b"\x0f" + (4).to_bytes(8, "little"))  # the DataEnd record
+    assert data_end > 0
+    mid = data_end // 2  # the data section's middle (the summary after it is not read)
     data[mid: mid + 64] = bytes(64)  # zeroes in the middle: a chunk or a record header
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(bytes(data))
@@ -203,6 +205,14 @@ def test_tail_reports_garbage_and_bad_chunks_without_raising(tmp_path: Path) -> 
     tail.refresh()
     tail.load_episode()  # must not raise either
     assert tail.problem and tail.problem.startswith("bad.mcap: "), "the message names the file"
+    for at in range(20, data_end, 97):  # zeroes anywhere in the data section: never an exception
+        hit = bytearray(path.read_bytes())
+        hit[at: at + 64] = bytes(64)
+        bad.write_bytes(bytes(hit))
+        tail = LogTail(bad)
+        tail.refresh()
+        tail.episode_keys()
+        tail.load_episode()
 
 
 # --- run index -----------------------------------------------------------------------------
