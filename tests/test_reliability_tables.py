@@ -123,3 +123,14 @@ def test_a_run_folder_without_config_yaml_is_listed_and_refused_in_one_line(
         assert cli.main(argv) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert err == [f"detach-run: error: {bad.path}: not a run folder (no config.yaml)"]
+
+
+def test_a_table_of_a_task_never_evaluated_is_one_line_not_an_empty_table(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    _run(tmp_path, _eval(0.25))
+    out = tmp_path / "tables"
+    assert cli.main(["table", str(tmp_path), "--task", "lh9", "--out", str(out)]) == 2
+    captured = capsys.readouterr()
+    assert captured.err.strip().splitlines() == [
+        f"detach-run: error: {tmp_path}: --task: no evaluation of task 'lh9' (evaluated: follow)"]
+    assert captured.out == "" and not out.exists(), "nothing printed or written"

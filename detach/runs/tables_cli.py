@@ -87,6 +87,10 @@ def print_table(source: Path, runs_dir: Path, kind: str | None, out: Path | None
         curves = _sweep_runs(find_runs(runs_dir), cell_keys(source, preset))
     if not evals:
         raise ConfigError("no eval.json found (train and evaluate runs first)", str(source))
+    evaluated = sorted({e.task for e in evals})
+    if task is not None and task not in evaluated:  # else an empty table, exit 0: a typo looks like no result
+        raise ConfigError(f"--task: no evaluation of task '{task}' (evaluated: {', '.join(evaluated)})",
+                          str(source))
     for k in kinds:
         table = render(k, evals, task, sgr_variant)
         markdown = table.to_markdown()
