@@ -6,6 +6,7 @@ the cell as it finds it (issue 19, item 5; docs/RELIABILITY.md)."""
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 import textwrap
@@ -17,18 +18,18 @@ import pytest
 
 from detach.config import resolve
 from detach.runs.folder import RunFolder, find_runs
-from detach.runs.sweep import cells, load_sweep
+from detach.runs.sweep import cells, load_sweep, run_sweep
 from tests.test_runner_cli import FOLLOW
 from tests.test_sweep_protocol import ROOT, TINY
 
 
-def _one_stage_sweep(tmp_path: Path) -> Path:
-    """A sweep of one follow cell (mlp, seed 0): nothing to train once that cell is done."""
+def _one_stage_sweep(tmp_path: Path, models: str = "[mlp]") -> Path:
+    """A sweep of one follow cell per model (seed 0): nothing to train once those are done."""
     sweep = tmp_path / "sweeps" / "one.yaml"
     sweep.parent.mkdir(parents=True, exist_ok=True)
     sweep.write_text(textwrap.dedent(f"""\
         name: one
-        models: [mlp]
+        models: {models}
         seeds: [0]
         table: skills
         stages:
@@ -78,3 +79,47 @@ def test_a_cell_running_in_another_process_is_waited_for_not_run_twice_nor_faile
     assert f"waiting: {cell.key} is running in process" in text
     assert "FAILED" not in text and f"{cell.key}: done" in text
     assert [r.path for r in find_runs(out)] == [run.path]
+
+
+class _FakeRay:
+    """Ray's API as the sweep uses it, with no cluster: the first submitted cell ends at once,
+    the second only once the sweep has printed that the first is done."""
+
+    def __init__(self, capsys: pytest.CaptureFixture[str]) -> None:
+        self.capsys, self.refs, self.printed, self.waits = capsys, [], "", 0
+
+    def is_initialized(self) -> bool:
+        return True
+
+    def remote(self, **_options: object):
+        def wrap(_fn: object) -> object:
+            fake = self
+
+            class Remote:
+                @staticmethod
+                def remote(*_args: object) -> object:
+                    fake.refs.append(object())
+                    return fake.refs[-1]
+            return Remote
+        return wrap
+
+    def wait(self, refs: list, num_returns: int = 1, timeout: float | None = None) -> tuple[list, list]:
+        self.waits += 1
+        assert self.waits < 50, f"the first cell's end was never reported while the second ran: {self.printed!r}"
+        self.printed += self.capsys.readouterr().out
+        first_reported = re.search(r"\[1/2\] \S+: done", self.printed)
+        ready = [r for r in refs if r is self.refs[0] or (first_reported and r is self.refs[1])][:num_returns]
+        return ready, [r for r in refs if r not in ready]
+
+    def get(self, _ref: object) -> tuple[int, str]:
+        return 0, ""
+
+
+def test_a_ray_sweep_reports_each_cell_as_it_ends(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    """With Ray, a cell's end is printed when it ends, not when the last cell does."""
+    fake = _FakeRay(capsys)
+    monkeypatch.setitem(sys.modules, "ray", fake)
+    assert run_sweep(_one_stage_sweep(tmp_path, "[mlp, cml]"), tmp_path / "runs", jobs=2, launcher="ray") == 0
+    printed = fake.printed + capsys.readouterr().out
+    assert len(fake.refs) == 2 and re.search(r"\[2/2\] \S+: done", printed), printed
