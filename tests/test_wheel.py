@@ -4,6 +4,7 @@ site-packages), run from another directory."""
 
 from __future__ import annotations
 
+import shutil
 import site
 import subprocess
 import sys
@@ -22,11 +23,27 @@ def _run(cmd: list, cwd: Path, **kw) -> subprocess.CompletedProcess:
     return proc
 
 
+def _source_copy(dest: Path) -> Path:
+    """The checkout's files that git knows or would add (no runs/, assets/, build/): the build
+    leaves nothing in the checkout and no earlier build/ folder leaks into the wheel."""
+    listed = subprocess.run(["git", "ls-files", "-co", "--exclude-standard", "-z"], cwd=ROOT, capture_output=True,
+                            check=True).stdout.decode().split("\0")
+    for name in filter(None, listed):
+        src, dst = ROOT / name, dest / name
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        if src.is_symlink():
+            dst.symlink_to(src.readlink())
+        elif src.is_file():
+            shutil.copy2(src, dst)
+    return dest
+
+
 @pytest.mark.slow
 def test_wheel_installs_and_runs_from_another_directory(tmp_path: Path) -> None:
     dist = tmp_path / "dist"
+    source = _source_copy(tmp_path / "src")
     _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "--no-index", "-q",
-          "-w", dist, ROOT], cwd=tmp_path)
+          "-w", dist, source], cwd=tmp_path)
     (wheel,) = dist.glob("detach-*.whl")
     names = set(zipfile.ZipFile(wheel).namelist())
     for shipped in ("detach/configs/tasks/lh1.yaml", "detach/configs/tasks/base/lh.yaml",
