@@ -43,9 +43,10 @@ def test_a_failed_cell_prints_its_progress_and_the_tail_of_its_stderr(tmp_path: 
     sweep = one_stage_sweep(tmp_path, [*TINY, "train.init_from=/nowhere/run"])
     assert cli.main(["--sweep", str(sweep), "--out", str(tmp_path / "runs")]) == 1
     out = capsys.readouterr().out
-    assert re.search(r"\[0/1\] follow/mlp/s0/\w+: start \(elapsed \d+ s, ETA \?\)", out), out
-    assert re.search(r"\[1/1\] follow/mlp/s0/\w+: FAILED \(exit 2; elapsed \d+ s, ETA 0 s\)", out), out
-    assert re.search(r"\n    \| detach-run: error: train.init_from: /nowhere/run is neither a run folder", out), out
+    elapsed = r"elapsed [\d.]+ (s|min|h)"
+    assert re.search(rf"\[0/1\] follow/mlp/s0/\w+: start \({elapsed}, ETA \?\)", out), out
+    assert re.search(rf"\[1/1\] follow/mlp/s0/\w+: FAILED \(exit 2; {elapsed}, ETA 0 s\)", out), out
+    assert re.search(r"\n    \| detach-run: error: .*train.init_from: /nowhere/run is neither a run folder", out), out
 
 
 def test_stderr_tail_shows_a_progress_bar_as_a_terminal_would() -> None:
@@ -63,7 +64,7 @@ def test_the_submitit_launcher_runs_cells_as_jobs(tmp_path: Path, monkeypatch: p
     out = tmp_path / "runs"
     assert run_sweep(sweep, out, jobs=1, launcher="slurm") == 0
     runs = find_runs(out)
-    assert len(runs) == 1 and runs[0].status().state == "finished" and runs[0].eval_result() is not None
+    assert len(runs) == 1 and runs[0].status().state == "finished"
     printed = capsys.readouterr().out
     assert "(slurm)" in printed and re.search(r"\[1/1\] follow/mlp/s0/\w+: done \(elapsed", printed), printed
     assert list((out / ".submitit").glob("*_log.out")), "submitit's job logs"
