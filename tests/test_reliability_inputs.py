@@ -99,9 +99,9 @@ def test_a_yaml_alias_bomb_is_refused_at_once(tmp_path: Path, capsys: pytest.Cap
     bomb = tmp_path / "bomb.yaml"
     bomb.write_text(ALIAS_BOMB)
     assert len(ALIAS_BOMB) < 2048
-    start = time.monotonic()
+    start = time.process_time()  # CPU time: a busy shared machine must not fail the test, a hang must
     assert cli.main([str(bomb), "--model", "mlp", "--out", str(tmp_path / "runs")]) == 2
-    assert time.monotonic() - start < 10
+    assert time.process_time() - start < 10
     line = _one_line(capsys)
     assert str(bomb) in line and "possible alias bomb" in line
     with pytest.raises(ConfigError, match="possible alias bomb"):
@@ -114,12 +114,12 @@ def test_oversized_and_deeply_nested_yaml_is_refused_without_reading_it(tmp_path
     with open(huge, "w") as f:
         f.write("# padding\n" * (MAX_YAML_BYTES // 10 + 10))
         f.write("name: x\n")
-    start = time.monotonic()
+    start = time.process_time()
     with pytest.raises(ConfigError, match="larger than 4 MB"):
         load_yaml(huge)
     with pytest.raises(ConfigError, match="larger than 4 MB"):
         load_yaml(Path("/dev/zero"))
-    assert time.monotonic() - start < 10
+    assert time.process_time() - start < 10
     deep = tmp_path / "deep.yaml"
     deep.write_text("a: " + "[" * 5000 + "]" * 5000 + "\n")
     with pytest.raises(ConfigError, match="nested more than 64 levels"):
