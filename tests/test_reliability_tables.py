@@ -134,3 +134,17 @@ def test_a_table_of_a_task_never_evaluated_is_one_line_not_an_empty_table(
     assert captured.err.strip().splitlines() == [
         f"detach-run: error: {tmp_path}: --task: no evaluation of task 'lh9' (evaluated: follow)"]
     assert captured.out == "" and not out.exists(), "nothing printed or written"
+
+
+def test_a_table_whose_default_task_no_run_reached_writes_nothing_and_says_so(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A sweep in progress (phase A evaluated on follow, no LH1 cell yet): Table I would be an
+    empty table that reads like a result."""
+    _run(tmp_path, _eval(1.0))
+    out = tmp_path / "tables"
+    assert cli.main(["table", str(tmp_path), "--kind", "skills", "--out", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert "skills: no run evaluated on this table's task yet (evaluated: follow" in captured.err
+    assert captured.out == "" and not list(out.glob("*_skills.*"))
+    assert cli.main(["table", str(tmp_path), "--kind", "skills", "--task", "follow", "--out", str(out)]) == 0
+    assert "| 1.00 [" in capsys.readouterr().out and (out / f"{tmp_path.name}_skills.csv").exists()

@@ -93,6 +93,10 @@ def print_table(source: Path, runs_dir: Path, kind: str | None, out: Path | None
                           str(source))
     for k in kinds:
         table = render(k, evals, task, sgr_variant)
+        if not table.rows:  # e.g. a sweep in progress: phase A evaluated, its LH1 cells not yet
+            _stderr(f"{k}: no run evaluated on this table's task yet (evaluated: {', '.join(evaluated)}; "
+                    f"--task NAME tables one of those); nothing written")
+            continue
         markdown = table.to_markdown()
         print(markdown)
         stem = out / (name if curves is not None else f"{name}_{k}")  # a sweep has one table
