@@ -147,4 +147,4 @@ def test_a_table_whose_default_task_no_run_reached_writes_nothing_and_says_so(
     assert "skills: no run evaluated on this table's task yet (evaluated: follow" in captured.err
     assert captured.out == "" and not list(out.glob("*_skills.*"))
     assert cli.main(["table", str(tmp_path), "--kind", "skills", "--task", "follow", "--out", str(out)]) == 0
-    assert "| 1.00 [" in capsys.readouterr().out and (out / f"{tmp_path.name}_skills.csv").exists()
+    assert "| 1.00 [" in capsys.readouterr().out and (out / f"{tmp_path.name}_skills_follow.csv").exists()

@@ -99,7 +99,8 @@ def print_table(source: Path, runs_dir: Path, kind: str | None, out: Path | None
             continue
         markdown = table.to_markdown()
         print(markdown)
-        stem = out / (name if curves is not None else f"{name}_{k}")  # a sweep has one table
+        stem = out / ((name if curves is not None else f"{name}_{k}")  # a sweep has one table
+                      + (f"_{task}" if task else ""))  # the table on another task than the paper's
         files = {stem.with_suffix(".md"): markdown, stem.with_suffix(".csv"): table.to_csv(),
                  stem.with_name(f"{stem.name}_ci.csv"): table.to_ci_csv(), stem.with_suffix(".tex"): table.to_latex()}
         try:
