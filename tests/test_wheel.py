@@ -4,6 +4,7 @@ site-packages), run from another directory."""
 
 from __future__ import annotations
 
+import os
 import shutil
 import site
 import subprocess
@@ -18,16 +19,25 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _run(cmd: list, cwd: Path, **kw) -> subprocess.CompletedProcess:
-    proc = subprocess.run([str(c) for c in cmd], cwd=cwd, capture_output=True, text=True, timeout=900, **kw)
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}  # the wheel's detach, not a source tree's
+    proc = subprocess.run([str(c) for c in cmd], cwd=cwd, capture_output=True, text=True, timeout=900, env=env, **kw)
     assert proc.returncode == 0, f"{cmd}\n{proc.stdout[-2000:]}\n{proc.stderr[-3000:]}"
     return proc
 
 
 def _source_copy(dest: Path) -> Path:
     """The checkout's files that git knows or would add (no runs/, assets/, build/): the build
-    leaves nothing in the checkout and no earlier build/ folder leaks into the wheel."""
-    listed = subprocess.run(["git", "ls-files", "-co", "--exclude-standard", "-z"], cwd=ROOT, capture_output=True,
-                            check=True).stdout.decode().split("\0")
+    leaves nothing in the checkout and no earlier build/ folder leaks into the wheel. A source
+    tree without git (an unpacked archive) is copied without what the build makes or reads."""
+    git = subprocess.run(["git", "ls-files", "-co", "--exclude-standard", "-z"], cwd=ROOT, capture_output=True)
+    if git.returncode != 0:
+        def skip(folder: str, names: list[str]) -> set[str]:
+            top = {"runs", "assets", "build", "dist", ".venv"} if Path(folder) == ROOT else set()
+            return {n for n in names if n in top or n == "__pycache__" or n.endswith(".egg-info")}
+
+        shutil.copytree(ROOT, dest, symlinks=True, ignore=skip)
+        return dest
+    listed = git.stdout.decode().split("\0")
     for name in filter(None, listed):
         src, dst = ROOT / name, dest / name
         dst.parent.mkdir(parents=True, exist_ok=True)
