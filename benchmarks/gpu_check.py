@@ -68,7 +68,7 @@ def raw_physics(ns: list[int], device: torch.device, seconds: float) -> list[dic
         _sync(device)
         compile_s = time.perf_counter() - t0
         warp_sps = _rate(lambda: be.step(ctrl, sub), n, device, seconds / 2)
-        del be
+        be = None  # free the worlds before the CPU run (the lambda above has run)
         cpu = mjbatch.Batch(model, n, nthread=0, persistent=True)
         cpu.forward()
         cpu_sps = _rate(lambda: cpu.step(nstep=sub), n, torch.device("cpu"), seconds / 2)
