@@ -342,13 +342,17 @@ def check_device(device: str) -> None:
     """Fail early, as a user error, on a device this machine does not have."""
     if device == "cpu":
         return
-    if not (device == "cuda" or device.startswith("cuda:")):
+    index = device.removeprefix("cuda:") if device.startswith("cuda:") else ""
+    if not (device == "cuda" or index.isdigit()):
         raise ConfigError(f"--device: expected cpu, cuda or cuda:N, found '{device}'")
     import torch
 
     if not torch.cuda.is_available():
         raise ConfigError(f"--device {device}: CUDA is not available on this machine "
                           f"(torch {torch.__version__}); use --device cpu")
+    if index and int(index) >= torch.cuda.device_count():
+        raise ConfigError(f"--device {device}: this machine has {torch.cuda.device_count()} CUDA device(s) "
+                          f"(cuda:0 to cuda:{torch.cuda.device_count() - 1})")
 
 
 def _fail(exc: Exception) -> int:
@@ -508,8 +512,10 @@ def _train(args: argparse.Namespace) -> int:
         if args.cell:
             run.set_state("queued", cell=args.cell)
     except OSError as exc:
-        raise ConfigError(f"cannot create a run folder under --runs {args.runs} "
-                          f"({exc.strerror or exc}); expected a writable folder") from None
+        blocker = next((p for p in (Path(args.runs), *Path(args.runs).parents) if p.exists()), None)
+        why = f"{blocker} is a file" if blocker is not None and not blocker.is_dir() else exc.strerror or exc
+        raise ConfigError(f"cannot create a run folder under --runs {args.runs} ({why}); "
+                          f"expected a writable folder") from None
     print(f"run folder: {run.path}")
     code = run_job(run, lambda r: train_and_evaluate(
         r, resume=False, eval_tasks=eval_on, trials=args.trials, evaluate=not args.no_eval))

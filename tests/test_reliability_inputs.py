@@ -39,6 +39,9 @@ def _one_line(capsys: pytest.CaptureFixture[str]) -> str:
     (["sim.physics_dt=.inf"], "sim.physics_dt: expected a finite value > 0, found inf"),
     (["train.max_grad_norm=-.inf"], "train.max_grad_norm: expected a finite value > 0, found -inf"),
     (["train.amp.grad_penalty=.inf"], "train.amp.grad_penalty: expected a finite value >= 0, found inf"),
+    (["--device", "cuda:abc"], "--device: expected cpu, cuda or cuda:N, found 'cuda:abc'"),
+    (["--device", "cuda:-1"], "--device: expected cpu, cuda or cuda:N, found 'cuda:-1'"),
+    (["--device", "tpu"], "--device: expected cpu, cuda or cuda:N, found 'tpu'"),
 ])
 def test_bad_numbers_are_one_line_and_create_nothing(extra: list[str], message: str, tmp_path: Path,
                                                     capsys: pytest.CaptureFixture[str]) -> None:
@@ -63,7 +66,7 @@ def test_an_out_folder_that_cannot_be_written_is_one_line(tmp_path: Path,
     line = _one_line(capsys)
     assert f"cannot create a run folder under --runs {blocker / 'runs'}" in line
     assert cli.main([FOLLOW, "--model", "mlp", "--out", str(blocker), *TINY]) == 2  # --out is a file
-    assert f"cannot create a run folder under --runs {blocker}" in _one_line(capsys)
+    assert f"cannot create a run folder under --runs {blocker} ({blocker} is a file)" in _one_line(capsys)
     assert blocker.read_text() == "not a folder"
     assert cli.main([FOLLOW, "--model", "mlp", "--out", "/proc/detach-runs", *TINY]) == 2
     assert "cannot create a run folder under --runs /proc/detach-runs" in _one_line(capsys)

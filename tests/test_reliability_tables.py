@@ -148,3 +148,17 @@ def test_a_table_whose_default_task_no_run_reached_writes_nothing_and_says_so(
     assert captured.out == "" and not list(out.glob("*_skills.*"))
     assert cli.main(["table", str(tmp_path), "--kind", "skills", "--task", "follow", "--out", str(out)]) == 0
     assert "| 1.00 [" in capsys.readouterr().out and (out / f"{tmp_path.name}_skills_follow.csv").exists()
+
+
+def test_a_table_out_that_is_a_file_is_one_line_before_anything_is_printed(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    _run(tmp_path, _eval(1.0))
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder")
+    for out in (blocker, blocker / "tables"):
+        assert cli.main(["table", str(tmp_path), "--task", "follow", "--out", str(out)]) == 2
+        captured = capsys.readouterr()
+        assert captured.out == "", "no table printed before the error"
+        assert captured.err.strip().splitlines() == [
+            f"detach-run: error: {out}: --out: expected a folder, found a file ({blocker})"]
+    assert blocker.read_text() == "not a folder"

@@ -10,6 +10,7 @@ Two guards keep a table honest:
 
 from __future__ import annotations
 
+import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -87,6 +88,7 @@ def print_table(source: Path, runs_dir: Path, kind: str | None, out: Path | None
         curves = _sweep_runs(find_runs(runs_dir), cell_keys(source, preset))
     if not evals:
         raise ConfigError("no eval.json found (train and evaluate runs first)", str(source))
+    _check_writable(out)
     evaluated = sorted({e.task for e in evals})
     if task is not None and task not in evaluated:  # else an empty table, exit 0: a typo looks like no result
         raise ConfigError(f"--task: no evaluation of task '{task}' (evaluated: {', '.join(evaluated)})",
@@ -117,6 +119,15 @@ def print_table(source: Path, runs_dir: Path, kind: str | None, out: Path | None
         for path in write_sweep_curves(curves, out, title, _stderr):
             print(f"written: {path}")
     return 0
+
+
+def _check_writable(out: Path) -> None:
+    """Refuse an --out the table files cannot be written to before anything is printed."""
+    existing = next(p for p in (out, *out.parents) if p.exists())
+    if not existing.is_dir():
+        raise ConfigError(f"--out: expected a folder, found a file ({existing})", str(out))
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise ConfigError(f"--out: {existing} is not writable", str(out))
 
 
 def _sweep_runs(runs: list[RunFolder], cells: set[str]) -> dict[str, RunFolder]:
