@@ -360,11 +360,14 @@ def _number_text(value: float | None) -> str:
 
 
 POSITIVE = Range(0, open_low=True)
+ENV_COUNT = Range(1, 2**20)
+"""Environments in one process: the paper's 4096 x 256 is far past what one GPU holds; a larger
+number is a typo that would exhaust memory before any error could name it."""
 AT_LEAST_0, AT_LEAST_1 = Range(0), Range(1)
 FRACTION = Range(0, 1)
 VALUE_RANGES: dict[str, Range] = {
     "seed": Range(0, 2**32 - 1),
-    "sim.num_envs": AT_LEAST_1, "sim.physics_dt": POSITIVE, "sim.substeps": AT_LEAST_1,
+    "sim.num_envs": ENV_COUNT, "sim.physics_dt": POSITIVE, "sim.substeps": AT_LEAST_1,
     "sim.nthread": AT_LEAST_0, "sim.friction": AT_LEAST_0, "sim.solver_iterations": AT_LEAST_1,
     "sim.nconmax": AT_LEAST_1, "sim.njmax": AT_LEAST_1,
     "env.episode_length": AT_LEAST_1, "env.success_threshold": POSITIVE, "env.max_transition_steps": AT_LEAST_1,
@@ -375,7 +378,7 @@ VALUE_RANGES: dict[str, Range] = {
     "env.trajectory.num_verts": Range(2), "env.trajectory.speed_min": AT_LEAST_0,
     "env.trajectory.speed_max": AT_LEAST_0, "env.trajectory.sharp_turn_prob": FRACTION,
     "env.follow_on_path_frac": FRACTION,
-    "eval.trials": AT_LEAST_1, "eval.num_envs": AT_LEAST_1, "eval.max_transition_steps": AT_LEAST_1,
+    "eval.trials": AT_LEAST_1, "eval.num_envs": ENV_COUNT, "eval.max_transition_steps": AT_LEAST_1,
     "eval.confidence": Range(0, 1, open_low=True, open_high=True),
     "train.max_iterations": AT_LEAST_1, "train.num_steps_per_env": AT_LEAST_1, "train.save_interval": AT_LEAST_1,
     "train.keep_checkpoints.last": AT_LEAST_0, "train.keep_checkpoints.every": AT_LEAST_0,
