@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
+from detach.run_contract import atomic_writer
 from detach.runs.folder import RunFolder
 from detach.runs.mcap_log import read_metrics
 
@@ -101,10 +102,11 @@ def plot_stage(stage: str, curves: list[Curve], path: Path, title: str) -> None:
     fig.suptitle(f"{title}: {stage} (dots: per iteration; line: mean of the last {SMOOTH} logged)", fontsize=11)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
-    tmp.replace(path)
+    try:
+        with atomic_writer(path) as handle:
+            fig.savefig(handle, dpi=110, format="png")
+    finally:
+        plt.close(fig)
 
 
 def write_sweep_curves(runs: dict[str, RunFolder], out: Path, title: str, report: Report) -> list[Path]:

@@ -79,13 +79,14 @@ def print_table(source: Path, runs_dir: Path, kind: str | None, out: Path | None
         out = out or source / "tables"
         curves = None
     else:
-        from detach.runs.sweep import cell_keys, load_sweep
+        from detach.runs.sweep import cell_keys, existing_runs, load_sweep
 
         sweep = load_sweep(source, preset=preset)
-        evals = collect_evals(find_runs(runs_dir), cell_keys(source, preset))
+        cells = cell_keys(source, preset)
+        evals = collect_evals(find_runs(runs_dir), cells)
         kinds, name = [kind or sweep.table], sweep.name
         out = out or runs_dir / "tables"
-        curves = _sweep_runs(find_runs(runs_dir), cell_keys(source, preset))
+        curves = {key: run for key, run in existing_runs(runs_dir).items() if key in cells}
     if not evals:
         raise ConfigError("no eval.json found (train and evaluate runs first)", str(source))
     _check_writable(out)
@@ -129,15 +130,3 @@ def _check_writable(out: Path) -> None:
     if not os.access(existing, os.W_OK | os.X_OK):
         raise ConfigError(f"--out: {existing} is not writable", str(out))
 
-
-def _sweep_runs(runs: list[RunFolder], cells: set[str]) -> dict[str, RunFolder]:
-    """Cell key -> its run folder (the newest, when a cell was trained twice)."""
-    found: dict[str, RunFolder] = {}
-    for run in sorted(runs, key=lambda r: r.path.name):  # run folder names start with their date
-        try:
-            cell = run.status().cell
-        except (OSError, ValueError):
-            continue
-        if cell in cells:
-            found[cell] = run
-    return found
