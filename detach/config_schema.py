@@ -291,6 +291,13 @@ class TrainCfg:
     """Start from another run's weights: a run folder (its latest checkpoint) or a checkpoint
     file. Policy, critic, their normalisers and the discriminators are loaded; the optimiser
     and the iteration count start afresh (the progressive protocol: docs/PROTOCOL.md)."""
+    init_normalizers: Literal["restart", "keep"] = "restart"
+    """With `init_from`: `restart` (default) starts the policy's and critic's observation
+    statistics afresh on this run's task (the first rollout sets them); `keep` continues the
+    source's. Kept statistics break a later stage of the protocol: an input the source task
+    never varied (Carry's box, Follow's empty height map) has variance 0 there and would be
+    scaled by rsl-rl's 1/eps = 100 for hundreds of iterations (the source's sample count
+    outweighs the new task's)."""
     per_objective_advantage_norm: bool = False
     """With a multi-head critic (CML), normalise the advantage of each objective before their
     weighted sum; otherwise the weighted sum is normalised as one."""

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from rsl_rl.modules import EmpiricalNormalization
 
 from detach.character import character_class
 from detach.config import ConfigError, load_run_config
@@ -207,4 +208,35 @@ def load_initial_weights(runner: DetachRunner, cfg: RunConfig) -> str:
             raise ConfigError(f"train.init_from: {checkpoint} holds model {source_model}, which does not fit "
                               f"this run's model {cfg.model_name} ({cfg.model.kind}): {name} " + "; ".join(problems))
         module.load_state_dict(source, strict=False)
-    return f"initialised from {checkpoint} (model {source_model}, iteration {state.get('iter', '?')})"
+    restarted = ""
+    if cfg.train.init_normalizers == "restart":
+        restarted = f", {restart_normalizers(alg.actor, alg.critic)} observation normalisers restarted"
+    return f"initialised from {checkpoint} (model {source_model}, iteration {state.get('iter', '?')}{restarted})"
+
+
+def restart_normalizers(*modules: torch.nn.Module) -> int:
+    """Restart the observation statistics of `modules` on this run's task (`train.init_normalizers`
+    says why); returns how many normalisers changed.
+
+    A normaliser this run updates goes back to its initial state (mean 0, var 1, count 0), so
+    the first update takes this task's statistics whole. The frozen input normaliser of a frozen
+    pre-trained policy (`new_parameter_prefixes()` non-empty: TokenHSI's adapters, CML's
+    cooperative policy) is never updated; there an input the source never saw vary is held at
+    the value it saw (its std set to 1e6, so it normalises to ~0), as the frozen network knew it.
+    """
+    count = 0
+    for module in modules:
+        frozen_base = bool(getattr(module, "new_parameter_prefixes", lambda: ())())
+        for name, sub in module.named_modules():
+            if not isinstance(sub, EmpiricalNormalization):
+                continue
+            if frozen_base and name == "obs_normalizer":
+                unseen = sub._var <= 1e-12
+                sub._std[unseen] = 1e6
+            else:
+                sub._mean.zero_()
+                sub._var.fill_(1.0)
+                sub._std.fill_(1.0)
+                sub.count.zero_()
+            count += 1
+    return count

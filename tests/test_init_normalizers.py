@@ -1,0 +1,75 @@
+"""`train.init_from` across tasks (the progressive protocol) and the observation normalisers.
+
+The bug this guards: Carry started from a Follow run kept Follow's statistics, in which the
+box's inputs and the height map had variance 0, so rsl-rl's normaliser divided them by its
+eps (0.01) and the policy saw the box 100x too large; with Follow's sample count outweighing
+Carry's, it stayed so for hundreds of iterations and Carry learned nothing.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+
+from detach import cli
+from detach.config import resolve
+from detach.runs.folder import find_runs
+from detach.train.checks import complete_run_config
+from detach.train.setup import build_runner, load_initial_weights
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = ["env.character=puppet", "sim.num_envs=4", "train.num_steps_per_env=8", "eval.num_envs=2",
+        "env.episode_length=60", "eval.trials=2"]
+
+
+@pytest.fixture(scope="module")
+def follow_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("runs")
+    assert cli.main(["train", str(ROOT / "configs/tasks/follow.yaml"), "--model", "mlp", "--runs", str(out),
+                     *TINY, "train.max_iterations=2"]) == 0
+    (run,) = find_runs(out)
+    return run.path
+
+
+def _carry_inputs_after_init(follow_run: Path, model: str, policy: str) -> tuple[torch.Tensor, object]:
+    """|normalised observation| of a fresh Carry env's first step, as the policy started
+    from `follow_run` sees it, and the actor."""
+    cfg = complete_run_config(resolve(ROOT / "configs/tasks/carry.yaml", model,
+                                      TINY + [f"train.init_from={follow_run}", f"train.init_normalizers={policy}"]))
+    env, runner = build_runner(cfg, None, "cpu", progress=False)
+    print(load_initial_weights(runner, cfg))
+    actor = runner.alg.actor
+    obs = env.get_observations()
+    flat = torch.cat([obs[g] for g in actor.obs_groups], dim=-1)
+    return actor.obs_normalizer(flat).abs(), actor
+
+
+def test_kept_statistics_blow_up_the_inputs_follow_never_varied(follow_run: Path) -> None:
+    z, _ = _carry_inputs_after_init(follow_run, "mlp", "keep")
+    assert z.max() > 50.0  # the failure: inputs Follow never varied scaled by 1/eps
+
+
+def test_restarted_statistics_take_the_new_task_whole_on_the_first_update(follow_run: Path) -> None:
+    z, actor = _carry_inputs_after_init(follow_run, "mlp", "restart")
+    assert int(actor.obs_normalizer.count) == 0
+    assert z.max() < 50.0
+    obs = torch.randn(64, actor.obs_normalizer._mean.shape[-1]) * 3.0 + 2.0
+    actor.obs_normalizer.train()
+    actor.obs_normalizer.update(obs)
+    torch.testing.assert_close(actor.obs_normalizer._mean[0], obs.mean(0))
+
+
+def test_a_carry_stage_started_from_follow_trains_on_its_own_statistics(follow_run: Path, tmp_path: Path) -> None:
+    """Through the CLI: the Carry run's checkpoint holds statistics of Carry samples alone."""
+    out = tmp_path / "runs"
+    assert cli.main(["train", str(ROOT / "configs/tasks/carry.yaml"), "--model", "mlp", "--runs", str(out),
+                     *TINY, "train.max_iterations=1", "train.save_interval=1",
+                     f"train.init_from={follow_run}"]) == 0
+    (run,) = find_runs(out)
+    state = torch.load(sorted(run.checkpoints.glob("model_*.pt"))[-1], weights_only=True)
+    source = torch.load(sorted((follow_run / "checkpoints").glob("model_*.pt"))[-1], weights_only=True)
+    carry_count = int(state["actor_state_dict"]["obs_normalizer.count"])
+    assert 0 < carry_count < int(source["actor_state_dict"]["obs_normalizer.count"]) + 1
+    assert carry_count <= 4 * 8  # one iteration of 4 envs x 8 steps: Follow's samples are gone
