@@ -269,8 +269,10 @@ def build_export_parser() -> argparse.ArgumentParser:
     parser.add_argument("target", type=Path, metavar="RUN_DIR")
     parser.add_argument("--checkpoint", type=_int_in(0), default=None, metavar="N",
                         help="iteration of the checkpoint (default: the newest readable one)")
-    parser.add_argument("--format", dest="fmt", choices=["onnx", "jit"], default="onnx",
-                        help="ONNX (onnxruntime) or TorchScript (default: onnx)")
+    parser.add_argument("--format", dest="fmt", choices=["onnx", "jit", "init"], default="onnx",
+                        help="ONNX (onnxruntime), TorchScript, or init: a compact start for train.init_from "
+                             "(actor and critic in float16, no optimiser, replay or discriminator) "
+                             "(default: onnx)")
     parser.add_argument("--output", type=Path, default=None, metavar="FILE",
                         help="where to write it (default: inside the run folder)")
     return parser
@@ -452,7 +454,7 @@ def _keys(section: str | None) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
-    """`detach.runs.export.export_run(run_dir, checkpoint=N|None, fmt='onnx'|'jit', output=Path|None)`."""
+    """`detach.runs.export.export_run(run_dir, checkpoint=N|None, fmt='onnx'|'jit'|'init', output=Path|None)`."""
     from detach.runs.export import export_run
 
     exported = export_run(args.target, checkpoint=args.checkpoint, fmt=args.fmt, output=args.output)

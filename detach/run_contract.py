@@ -49,7 +49,7 @@ PARAMS_DIR = "params"
 AGENT_PARAMS_FILE = "params/agent.yaml"
 """rsl-rl's train config of the run (IsaacLab's name), relative to the run folder."""
 EXPORT_DIR = "exported"
-EXPORT_FORMATS: dict[str, str] = {"onnx": ".onnx", "jit": ".pt"}
+EXPORT_FORMATS: dict[str, str] = {"onnx": ".onnx", "jit": ".pt", "init": ".init.pt"}
 """`detach-run export --format` -> file suffix."""
 RUN_MARKERS = (CONFIG_FILE, STATUS_FILE)
 """A folder holding either file is a run folder."""
@@ -145,7 +145,7 @@ def fsync_folder(folder: Path) -> None:
 
 
 def export_file(iteration: int, fmt: str) -> str:
-    """File name (in exported/) of the policy of checkpoint `iteration` in `fmt` (onnx, jit);
+    """File name (in exported/) of the policy of checkpoint `iteration` in `fmt` (onnx, jit, init);
     its layout description is the same name with `.json`."""
     return f"policy_{int(iteration)}{EXPORT_FORMATS[fmt]}"
 

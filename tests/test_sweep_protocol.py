@@ -194,7 +194,8 @@ def test_init_from_refuses_another_architecture_naming_both_models(tmp_path: Pat
     assert not (tmp_path / "d").exists()
 
 
-def test_init_from_copies_weights_normalisers_and_discriminator(tmp_path: Path) -> None:
+@pytest.mark.parametrize("normalizers", ["keep", "restart"])
+def test_init_from_copies_weights_normalisers_and_discriminator(tmp_path: Path, normalizers: str) -> None:
     from detach.config import resolve
     from detach.train.setup import build_runner, load_initial_weights
 
@@ -202,14 +203,18 @@ def test_init_from_copies_weights_normalisers_and_discriminator(tmp_path: Path) 
     assert cli.main([str(follow), "--model", "mlp", "--out", str(tmp_path / "a"), "--no-eval", *TINY]) == 0
     source = find_runs(tmp_path / "a")[0]
     saved = torch.load(source.latest_checkpoint(), weights_only=True)
-    cfg = resolve(ROOT / "configs/tasks/carry.yaml", "mlp", [*TINY, f"train.init_from={source.path}"])
+    cfg = resolve(ROOT / "configs/tasks/carry.yaml", "mlp", [*TINY, f"train.init_from={source.path}",
+                                                             f"train.init_normalizers={normalizers}"])
     _env, runner = build_runner(cfg, None, "cpu", progress=False)
     before = {k: v.clone() for k, v in runner.alg.actor.state_dict().items()}
     assert "initialised from" in load_initial_weights(runner, cfg)
     actor = runner.alg.actor.state_dict()
     assert any(not torch.equal(before[k], actor[k]) for k in actor)
-    assert all(torch.equal(actor[k], saved["actor_state_dict"][k]) for k in actor)  # normaliser included
-    assert any("normalizer" in k for k in actor)
+    weights = [k for k in actor if "normalizer" not in k]
+    assert all(torch.equal(actor[k], saved["actor_state_dict"][k]) for k in weights)
+    stats = [k for k in actor if "normalizer" in k]
+    assert stats and all(torch.equal(actor[k], saved["actor_state_dict"][k]) == (normalizers == "keep")
+                         or torch.equal(saved["actor_state_dict"][k], before[k]) for k in stats)
     disc = runner.alg.discriminators.state_dict()
     assert all(torch.equal(disc[k], saved["discriminator_state_dict"][k]) for k in disc)
     assert runner.completed_iteration == -1, "a run started from another one counts its own iterations"

@@ -3,8 +3,8 @@
 Conventions (so the paper's λ values act on comparable scales): squared errors ‖a - b‖² are
 means over batch, time and features (MSE); sums over time steps in the paper (Σ_t) are means
 too. Correlation/MI terms act on per-sample vectors [N, D] (time-mean of z sequences), with the
-correlation taken across the batch. Parameter preservation (R1, R2) is a plain sum of squared
-differences, as printed.
+correlation taken across the batch, and are means over the feature pairs. Parameter
+preservation (R1, R2) is a plain sum of squared differences, as printed.
 """
 
 from __future__ import annotations
@@ -59,18 +59,21 @@ def correlation_matrix(a: torch.Tensor, b: torch.Tensor, eps: float = 1e-6) -> t
 
 
 def r_decouple(z_env: torch.Tensor, z_self: torch.Tensor) -> torch.Tensor:
-    """R_decouple = ‖Corr(z_env, z_self)‖_F² on [N, D] features."""
-    return correlation_matrix(z_env, z_self).pow(2).sum()
+    """R_decouple = ‖Corr(z_env, z_self)‖_F² on [N, D] features, as a mean over the Da·Db
+    feature pairs (the module's convention). As a sum it was 150-900 for 64-wide codes, so
+    λ_decouple·R_decouple outweighed PPO's loss ~30:1 in the joint stage and Carry stalled."""
+    return correlation_matrix(z_env, z_self).pow(2).mean()
 
 
 def gaussian_mi(z_env: torch.Tensor, z_self: torch.Tensor, max_rho2: float = 0.9999) -> torch.Tensor:
-    """Correlation-based MI estimate I ≈ -½ Σ_ij log(1 - ρ_ij²) (nats).
+    """Correlation-based MI estimate I ≈ -½ mean_ij log(1 - ρ_ij²) (nats per feature pair).
 
-    Exact for jointly Gaussian pairs; summing over feature pairs ignores the joint structure
-    (no covariance inversion, so it stays stable for small batches and singular covariances).
+    Exact for a jointly Gaussian pair; taking it pair by pair ignores the joint structure (no
+    covariance inversion, so it stays stable for small batches and singular covariances). A
+    mean over pairs, as `r_decouple`, so that λ_disentangle does not scale with the code width.
     """
     rho2 = correlation_matrix(z_env, z_self).pow(2).clamp(max=max_rho2)
-    return -0.5 * torch.log1p(-rho2).sum()
+    return -0.5 * torch.log1p(-rho2).mean()
 
 
 def temporal_consistency(z_seq: torch.Tensor) -> torch.Tensor:

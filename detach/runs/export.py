@@ -24,12 +24,15 @@ from detach.models.factory import build_actor_critic
 from detach.models.rsl_rl_models import FlatPolicy
 from detach.run_contract import EXPORT_DIR, EXPORT_FORMATS, checkpoint_file, checkpoint_iteration, export_file
 from detach.runs.folder import RunFolder, atomic_write_json
-from detach.train.checkpoints import check_model, load_module_weights, read_checkpoint
+from detach.train.checkpoints import check_model, load_module_weights, read_checkpoint, write_checkpoint
 from detach.train.setup import default_action_std, prepare_assets
 
 ONNX_OPSET = 18
 TOLERANCE = 1e-4
 """Largest |exported - eager| action accepted (float32 kernels differ in summation order)."""
+INIT_TOLERANCE = 0.05
+"""Largest |float16 - float32| action mean accepted for `--format init` (actions live in [-1, 1]
+and the policy's exploration std is ~1 on the puppet; float16 keeps ~3 significant digits)."""
 
 
 @dataclass
@@ -83,6 +86,8 @@ def export_run(run_dir: Path, checkpoint: int | None = None, fmt: str = "onnx",
     target = Path(out) if out is not None else run.path / EXPORT_DIR / export_file(iteration, fmt)
     target.parent.mkdir(parents=True, exist_ok=True)
     obs = _check_observations(env, actor)
+    if fmt == "init":
+        return _export_init(state, actor, obs, policy, cfg, iteration, path, target)
     if fmt == "onnx":
         _write_onnx(actor, target)
         run_file = _onnx_runner(target)
@@ -155,3 +160,34 @@ def _layout(policy: FlatPolicy, cfg, iteration: int, checkpoint: Path, fmt: str,
             "output": {"name": "actions", "width": policy.num_actions,
                        "meaning": "the policy's mean action; the environment clamps it to [-1, 1]"},
             "check": {"max_abs_diff": diff, "tolerance": TOLERANCE}}
+
+
+def _half(weights: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """Floating weights in float16, except the input normalisers' statistics (their variances
+    can leave float16's range) and anything not floating (counts, masks)."""
+    return {k: v.half() if v.is_floating_point() and "normalizer" not in k else v.clone() for k, v in weights.items()}
+
+
+def _export_init(state: dict, actor: torch.nn.Module, obs: dict[str, torch.Tensor], policy: FlatPolicy, cfg,
+                 iteration: int, checkpoint: Path, target: Path) -> Exported:
+    """`--format init`: the checkpoint's actor and critic (float16, normalisers float32) and its
+    model names, for `train.init_from` (which reads a checkpoint file, `detach.train.setup`).
+    Small enough to ship (~2 bytes per parameter): no optimiser, AMP replay or discriminator (a
+    run started from it trains a fresh one). Checked: the actor with the float16 weights against
+    the float32 one on the check observations."""
+    small = {"actor_state_dict": _half(state["actor_state_dict"]), "critic_state_dict": _half(state["critic_state_dict"]),
+             "iter": iteration, "infos": {"model": cfg.model_name, "model_kind": cfg.model.kind,
+                                          "task": cfg.task_name, "character": cfg.env.character}}
+    with torch.no_grad():
+        eager = actor(obs)
+        load_module_weights(actor, small["actor_state_dict"], target, "actor")
+        diff = float((actor(obs) - eager).abs().max())
+    if not diff <= INIT_TOLERANCE:
+        raise RuntimeError(f"the float16 policy differs from the float32 one by {diff:.3g} (> {INIT_TOLERANCE})")
+    write_checkpoint(target, small)
+    layout = target.with_name(target.name.removesuffix(".pt") + ".json")
+    info = _layout(policy, cfg, iteration, checkpoint, "init", target, diff)
+    info["check"]["tolerance"] = INIT_TOLERANCE
+    info["use"] = f"train.init_from={target.name} (actor and critic; float16 weights, float32 normalisers)"
+    atomic_write_json(layout, info)
+    return Exported(target, layout, iteration, diff)

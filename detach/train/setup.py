@@ -195,6 +195,9 @@ def load_initial_weights(runner: DetachRunner, cfg: RunConfig) -> str:
         state = torch.load(checkpoint, map_location=runner.device, weights_only=True)
     except Exception as exc:  # noqa: BLE001 - a broken file is a user error here
         raise ConfigError(f"train.init_from: cannot read {checkpoint} ({type(exc).__name__})") from None
+    infos = state.get("infos") if isinstance(state, dict) else None
+    if run is None and isinstance(infos, dict) and "model" in infos:  # a shipped file (export --format init)
+        source_model = f"{infos['model']} ({infos.get('model_kind', '?')})"
     alg = runner.alg
     parts = [("actor", alg.actor, state.get("actor_state_dict")), ("critic", alg.critic, state.get("critic_state_dict"))]
     if alg.amp_enabled and "discriminator_state_dict" in state:
