@@ -522,6 +522,9 @@ def _train(args: argparse.Namespace) -> int:
     code = run_job(run, lambda r: train_and_evaluate(
         r, resume=False, eval_tasks=eval_on, trials=args.trials, evaluate=not args.no_eval))
     print(f"run folder: {run.path}")
+    if code == 0 and not args.cell:
+        print(f"next: detach-dashboard --runs {args.runs}  (curves, 3D replay of the evaluation, tables; "
+              f"loopback http://127.0.0.1:8080)")
     return code
 
 

@@ -9,11 +9,15 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import re
 import types
 import typing
 from typing import Any, Literal
 
 from detach.yaml_source import ConfigError, ConfigOrigin, KeyPath, Provenance
+
+EXPONENT_FLOAT = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)[eE][+-]?\d+")
+"""A number in exponent notation that YAML 1.1 leaves a string (no dot: `1e-5`, `3E4`)."""
 
 
 def suggest(key: str, valid: typing.Iterable[str]) -> str:
@@ -68,6 +72,8 @@ class Builder:
 
     def _scalar(self, tp: Any, value: Any, path: KeyPath) -> Any:
         if tp is float:
+            if isinstance(value, str) and EXPONENT_FLOAT.fullmatch(value.strip()):
+                return float(value)  # `1e-5`: YAML 1.1 (PyYAML) reads a string without a dot
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise self.error(path, f"expected a number, found {describe(value)}")
             return float(value)

@@ -95,6 +95,15 @@ def test_overrides_set_add_and_index() -> None:
     assert cfg.model.self_encoder.predictor_hidden == 32  # a key of the kind's own config class
 
 
+def test_exponent_numbers_without_a_dot_are_numbers() -> None:
+    """`train.learning_rate=1e-5` was refused as "expected a number, found str '1e-5'" (YAML 1.1
+    reads an exponent without a dot as a string); a word is still refused."""
+    cfg = resolve(ROOT / "configs/tasks/follow.yaml", "mlp", ["train.learning_rate=1e-5", "sim.physics_dt=5E-3"])
+    assert cfg.train.learning_rate == 1e-5 and cfg.sim.physics_dt == 5e-3
+    with pytest.raises(ConfigError, match="expected a number, found str 'e5'"):
+        resolve(ROOT / "configs/tasks/follow.yaml", "mlp", ["train.learning_rate=e5"])
+
+
 def test_dry_run_prints_config_and_folder(capsys: pytest.CaptureFixture[str]) -> None:
     code = cli.main([str(ROOT / "configs/tasks/lh3.yaml"), "--model", "ablation_a1",
                      "--dry-run", "--seed", "7", "sim.num_envs=8"])
