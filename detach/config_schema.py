@@ -298,6 +298,13 @@ class TrainCfg:
     never varied (Carry's box, Follow's empty height map) has variance 0 there and would be
     scaled by rsl-rl's 1/eps = 100 for hundreds of iterations (the source's sample count
     outweighs the new task's)."""
+    init_at_random_ep_len: bool = True
+    """Start training with each environment at a random step of its first episode (rsl-rl's
+    `init_at_random_ep_len`, as IsaacLab and legged_gym train), so that episodes end at
+    different iterations. Off, all environments start together and, where nothing ends an
+    episode early (Carry's 1200 steps = 37 PPO iterations of 32 steps), every iteration's
+    batch comes from one phase of the same episodes: the approach to the box only in the
+    first of each 37 iterations."""
     per_objective_advantage_norm: bool = False
     """With a multi-head critic (CML), normalise the advantage of each objective before their
     weighted sum; otherwise the weighted sum is normalised as one."""

@@ -57,7 +57,7 @@ def train_and_evaluate(run: RunFolder, resume: bool, eval_tasks: Sequence[Path] 
             log.log_scene(scene_message(env, cfg))
         runner.on_iteration = lambda it, _m: run.set_state("running", iteration=it + 1)
         runner.episode_recorder = TrainingEpisodes(log)
-        runner.learn(cfg.train.max_iterations)
+        runner.learn(cfg.train.max_iterations, init_at_random_ep_len=cfg.train.init_at_random_ep_len)
     finally:
         log.close()
     if evaluate:

@@ -232,8 +232,8 @@ class DetachRunner(OnPolicyRunner):
         if self.is_distributed:  # torchrun: rank 0's weights, loaded or resumed after __init__'s broadcast
             self.alg.broadcast_parameters()
         if init_at_random_ep_len and start == 0:
-            self.env.episode_length_buf = torch.randint_like(
-                self.env.episode_length_buf, high=int(self.env.max_episode_length))
+            self.env.episode_length_buf.copy_(torch.randint_like(
+                self.env.episode_length_buf, high=int(self.env.max_episode_length)))
         previous = {sig: signal.signal(sig, self._request_stop)
                     for sig in (signal.SIGTERM, signal.SIGINT)}
         if self.logger.log_dir is not None and self.logger.writer is None:

@@ -146,7 +146,7 @@ def train_worker(cfg: RunConfig) -> None:
     log or progress bar, training in step with rank 0, whose weights it receives when
     training starts."""
     _env, runner = build_runner(cfg, None, cfg.device, log=None, progress=False)
-    runner.learn(cfg.train.max_iterations)
+    runner.learn(cfg.train.max_iterations, init_at_random_ep_len=cfg.train.init_at_random_ep_len)
 
 
 def find_init_checkpoint(source: str) -> tuple[Path, Path | None]:
