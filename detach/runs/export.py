@@ -175,9 +175,10 @@ def _export_init(state: dict, actor: torch.nn.Module, obs: dict[str, torch.Tenso
     Small enough to ship (~2 bytes per parameter): no optimiser, AMP replay or discriminator (a
     run started from it trains a fresh one). Checked: the actor with the float16 weights against
     the float32 one on the check observations."""
-    small = {"actor_state_dict": _half(state["actor_state_dict"]), "critic_state_dict": _half(state["critic_state_dict"]),
-             "iter": iteration, "infos": {"model": cfg.model_name, "model_kind": cfg.model.kind,
-                                          "task": cfg.task_name, "character": cfg.env.character}}
+    infos = {"model": cfg.model_name, "model_kind": cfg.model.kind, "task": cfg.task_name,
+             "character": cfg.env.character}
+    small = {"actor_state_dict": _half(state["actor_state_dict"]),
+             "critic_state_dict": _half(state["critic_state_dict"]), "iter": iteration, "infos": infos}
     with torch.no_grad():
         eager = actor(obs)
         load_module_weights(actor, small["actor_state_dict"], target, "actor")
@@ -188,6 +189,7 @@ def _export_init(state: dict, actor: torch.nn.Module, obs: dict[str, torch.Tenso
     layout = target.with_name(target.name.removesuffix(".pt") + ".json")
     info = _layout(policy, cfg, iteration, checkpoint, "init", target, diff)
     info["check"]["tolerance"] = INIT_TOLERANCE
+    info["input"]["normalised"] = "by the actor's obs_normalizer, whose statistics the file holds"
     info["use"] = f"train.init_from={target.name} (actor and critic; float16 weights, float32 normalisers)"
     atomic_write_json(layout, info)
     return Exported(target, layout, iteration, diff)

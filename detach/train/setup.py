@@ -199,7 +199,8 @@ def load_initial_weights(runner: DetachRunner, cfg: RunConfig) -> str:
     if run is None and isinstance(infos, dict) and "model" in infos:  # a shipped file (export --format init)
         source_model = f"{infos['model']} ({infos.get('model_kind', '?')})"
     alg = runner.alg
-    parts = [("actor", alg.actor, state.get("actor_state_dict")), ("critic", alg.critic, state.get("critic_state_dict"))]
+    parts = [("actor", alg.actor, state.get("actor_state_dict")),
+             ("critic", alg.critic, state.get("critic_state_dict"))]
     if alg.amp_enabled and "discriminator_state_dict" in state:
         parts.append(("discriminator", alg.discriminators, state["discriminator_state_dict"]))
     for name, module, source in parts:
