@@ -1,0 +1,45 @@
+"""Where does a Carry policy go? Median root-to-box XY distance, the share of envs within 0.6 m,
+the hands' median distance to the box surface, the share asking to grasp and the mean forward
+action, every 60 control steps of 8 s (16 envs, mean actions), per checkpoint.
+
+    python results/laptop/diagnosis/carry_rollout.py RUN_DIR CHECKPOINT.pt [CHECKPOINT.pt ...]
+"""
+import sys
+import torch
+from pathlib import Path
+from detach.runs.folder import RunFolder
+from detach.runs.session import eval_config
+from detach.envs.lh_env import make_env
+from detach.models.factory import build_actor_critic
+from detach.train.setup import default_action_std, seed_everything
+from detach.train.checkpoints import read_checkpoint, load_module_weights
+from detach.skills.carry import HAND_IDS
+from detach.torch_math import point_box_distance
+
+run = RunFolder(Path(sys.argv[1]))
+cfg = eval_config(run.config(), None)
+for name in sys.argv[2:]:
+    seed_everything(1)
+    env = make_env(cfg, num_envs=16, device="cpu", eval_mode=True)
+    path = Path(name)
+    state = read_checkpoint(path, "cpu")
+    actor, _ = build_actor_critic(cfg.model, env.obs_spec, env.get_observations(), num_actions=env.num_actions,
+                                  default_std=default_action_std(cfg))
+    load_module_weights(actor, state["actor_state_dict"], path, "actor")
+    actor.eval()
+    obs = env.get_observations()
+    rows = []
+    with torch.no_grad():
+        for t in range(240):
+            a = actor(obs)
+            obs, *_ = env.step(a)
+            if t % 30 == 29:
+                ctx = env.context()
+                d = (ctx.obj_pos[:, :2] - ctx.state.root_pos[:, :2]).norm(dim=-1)
+                hands = ctx.state.body_pos[:, HAND_IDS]
+                h = point_box_distance(hands, ctx.obj_pos[:, None], ctx.obj_quat[:, None],
+                                       ctx.obj_half[:, None]).mean(-1)
+                rows.append((t + 1, d.median().item(), (d < 0.6).float().mean().item(), h.median().item(),
+                             (a[:, -1] > 0).float().mean().item(), a[:, 32].mean().item()))
+    print(path.name, " ".join(f"t{t}: box {dm:.2f}m near {nf:.2f} hands {hm:.2f} grasp>0 {g:.2f} fwd {f:+.2f}"
+                              for t, dm, nf, hm, g, f in rows[::2]))
