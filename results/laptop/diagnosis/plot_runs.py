@@ -23,8 +23,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 from detach.runs.mcap_log import read_metrics  # noqa: E402
 
 
-def series(run: Path, metric: str) -> list[tuple[int, float]]:
-    rows = read_metrics(run / "log.mcap")
+def series(rows: list[dict], metric: str) -> list[tuple[int, float]]:
     out = []
     for row in rows:
         keys = [k for k in row if k == metric or k.endswith("/" + metric)]
@@ -41,6 +40,7 @@ def main() -> None:
     parser.add_argument("--title", default="")
     args = parser.parse_args()
     runs = [(label, Path(path)) for label, path in (r.split("=", 1) for r in args.run)]
+    logs = {run: read_metrics(run / "log.mcap") for _label, run in runs}  # each log read once
     stem = Path(__file__).parent / args.out
     fig, axes = plt.subplots(1, len(args.metric), figsize=(4.2 * len(args.metric), 3.4), squeeze=False)
     with open(stem.with_suffix(".csv"), "w", newline="") as f:
@@ -48,7 +48,7 @@ def main() -> None:
         writer.writerow(["run", "run_dir", "metric", "iteration", "value"])
         for ax, metric in zip(axes[0], args.metric):
             for label, run in runs:
-                points = series(run, metric)
+                points = series(logs[run], metric)
                 writer.writerows([label, run.name, metric, it, f"{v:.6g}"] for it, v in points)
                 if points:
                     ax.plot([p[0] for p in points], [p[1] for p in points], label=label, lw=1.2)
