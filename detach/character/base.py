@@ -9,7 +9,8 @@ package branches on a character's name:
   MjSpec; `link_objects` adds whatever the character needs per movable scene object;
 - actions: `num_actions`, `action_std` (initial policy std), `controls(actions, qpos)`;
 - episodes: `write_root` (reset states), `bind` / `reset` / `pre_step` (per-env runtime state,
-  e.g. the puppet's grasp) and `held_object`;
+  e.g. the puppet's grasp), `held_object`, and `hold` where `can_hold` (start an episode
+  holding an object);
 - rewards: `joint_power_weight` scales the power penalty;
 - scripting: a `scriptable` character accepts `scripted_actions` (the oracle's commands).
 
@@ -88,6 +89,8 @@ class Character(ABC):
     """Initial action std of a Gaussian policy (`model.init_noise_std: null` picks it)."""
     joint_power_weight: ClassVar[float] = 1.0
     scriptable: ClassVar[bool] = False
+    can_hold: ClassVar[bool] = False
+    """`hold` can start an episode with an object held (`env.held_init_prob`)."""
 
     def __init__(self) -> None:
         rng = torch.as_tensor(dof_ranges(), dtype=torch.float32)
@@ -125,6 +128,13 @@ class Character(ABC):
     def held_object(self) -> torch.Tensor:
         """[N] slot of the movable object each env holds by a constraint, -1 for none."""
         return torch.full((self.num_envs,), -1, dtype=torch.long, device=self.device)
+
+    def hold(self, ids: torch.Tensor, slots: torch.Tensor, root_pos: torch.Tensor, root_quat: torch.Tensor,
+             obj_pos: torch.Tensor, obj_quat: torch.Tensor) -> None:
+        """Envs ids [n] (just reset) start holding movable objects slots [n], the pelvis at
+        root_pos/root_quat and the objects at obj_pos/obj_quat (world frame, wxyz)."""
+        raise NotImplementedError(f"character '{self.name}' cannot start an episode holding an object; use one "
+                                  f"of {', '.join(n for n, c in CHARACTERS.items() if c.can_hold)}")
 
     def controls(self, actions: torch.Tensor, qpos: torch.Tensor) -> torch.Tensor:
         """MuJoCo ctrl [N, nu] from clamped actions [N, num_actions] and the current qpos."""

@@ -94,6 +94,7 @@ class Puppet(Character):
     """Its hinges are cosmetic (balance is not its problem): the power penalty, a humanoid
     regulariser, would only teach it to freeze."""
     scriptable = True
+    can_hold = True
 
     # ------------------------------------------------------------------ building
     def add_root(self, pelvis: mujoco.MjsBody) -> None:
@@ -183,18 +184,26 @@ class Puppet(Character):
         hands = state.body_pos[cand][:, self.hand_ids]
         ok = grasp_condition(hands, dpos, dquat, self.movable_half)
         first = torch.where(ok.any(-1), ok.float().argmax(-1), torch.full_like(cand, -1))
-        for k, obj in enumerate(self.movable):
+        for k in range(len(self.movable)):
             sel = first == k
-            if not bool(sel.any()):
-                continue
-            e = cand[sel]
-            pq, pp = state.root_quat[e], state.root_pos[e]
-            rel_p = quat_rotate(quat_conj(pq), dpos[sel, k] - pp)
-            rel_q = quat_mul(quat_conj(pq), dquat[sel, k])
-            data = torch.zeros(len(e), 12, device=self.device)
-            data[:, 3:6], data[:, 6:10], data[:, 10] = rel_p, rel_q, 1.0
-            self.backend.set_equality(e, obj.link_eq, torch.ones(len(e)), data)
-            self.grasp_obj[e] = k
+            if bool(sel.any()):
+                e = cand[sel]
+                self._weld(e, k, state.root_pos[e], state.root_quat[e], dpos[sel, k], dquat[sel, k])
+
+    def hold(self, ids, slots, root_pos, root_quat, obj_pos, obj_quat) -> None:
+        for k in range(len(self.movable)):
+            sel = slots == k
+            if bool(sel.any()):
+                self._weld(ids[sel], k, root_pos[sel], root_quat[sel], obj_pos[sel], obj_quat[sel])
+
+    def _weld(self, ids: torch.Tensor, k: int, root_pos: torch.Tensor, root_quat: torch.Tensor,
+              obj_pos: torch.Tensor, obj_quat: torch.Tensor) -> None:
+        """Attach movable object k to the pelvis of envs ids, keeping their relative pose."""
+        inv = quat_conj(root_quat)
+        data = torch.zeros(len(ids), 12, device=self.device)
+        data[:, 3:6], data[:, 6:10], data[:, 10] = quat_rotate(inv, obj_pos - root_pos), quat_mul(inv, obj_quat), 1.0
+        self.backend.set_equality(ids, self.movable[k].link_eq, torch.ones(len(ids)), data)
+        self.grasp_obj[ids] = k
 
     def controls(self, actions: torch.Tensor, qpos: torch.Tensor) -> torch.Tensor:
         yaw = qpos[:, self.root_qpos_adr + 3]

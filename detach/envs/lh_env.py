@@ -32,7 +32,8 @@ from detach.envs.terminations import Terminations
 from detach.sim import make_backend, sim_settings
 from detach.sim.raster import Raster
 from detach.sim.state import SceneIndex, SimState, read_state
-from detach.skills import PlanError, skill_names
+from detach.torch_math import quat_from_yaw
+from detach.skills import PlanError, Skill, skill_names
 from detach.skills.context import SkillContext, SkillServices
 from detach.skills.plan import compile_plan, plan_error_text
 from detach.skills.trajectories import TrajectoryReference
@@ -77,6 +78,10 @@ class LHEnv(VecEnv):
                         for k, i in enumerate(self.scene.dynamic))
         self.character.bind(self.num_envs, self.device, self.backend, movable, self.index.hands,
                             self.scene.root_qpos_adr)
+        self.dyn_slot = torch.full((len(objects) + 1,), -1, dtype=torch.long, device=self.device)
+        """Scene object index -> slot among the dynamic objects (-1: static)."""
+        self.dyn_slot[torch.as_tensor(self.scene.dynamic, dtype=torch.long, device=self.device)] = torch.arange(
+            len(self.scene.dynamic), device=self.device)
         self.num_actions = self.character.num_actions
         self.substeps, self.dt = int(sc.substeps), sc.physics_dt * sc.substeps
         self.max_episode_length = int(ec.episode_length)
@@ -89,6 +94,7 @@ class LHEnv(VecEnv):
                                       self.max_episode_length, self.max_transition_steps)
         self.resets = ResetSampler(cfg, self.scene, self.model, self.character, self.gen, self.device)
         self.tracker = PlanTracker(self.plan, self.services, self.index, self.resets.rest_z, self.num_envs)
+        self.mid_task_skill = self._mid_task_skill(ec.held_init_prob)
         self.rewards = RewardManager(cfg.rewards)
         self.terminations = Terminations(ec, self.tracker.skills)
         self.observations = ObservationBuilder(ec, self.num_envs, len(skill_names()), self.num_actions, raster,
@@ -160,12 +166,34 @@ class LHEnv(VecEnv):
                                        t.hold.float() / self.max_transition_steps,
                                        t.subtask.float() / t.num_subtasks)
 
+    def _mid_task_skill(self, prob: float) -> Skill | None:
+        """The first subtask's skill when training starts some episodes mid-task, else None."""
+        if self.eval_mode or prob <= 0.0:
+            return None
+        if not self.character.can_hold:
+            raise ValueError(f"env.held_init_prob: {prob} starts episodes holding an object, which character "
+                             f"'{self.character.name}' cannot; use env.character=puppet or held_init_prob 0")
+        first = self.plan[0]
+        skill = next(s for s in self.tracker.skills.values() if s.name == first.skill)
+        return skill if first.fixed_target is not None and (first.obj >= 0 or first.choices) else None
+
     def _reset_envs(self, ids: torch.Tensor) -> None:
         qpos, qvel, root_xy = self.resets.sample(ids)
+        self.tracker.draw_objects(ids)
+        mid = None
+        if self.mid_task_skill is not None:
+            target = torch.tensor(self.plan[0].fixed_target, dtype=torch.float32, device=self.device)
+            mid = self.resets.mid_task(ids, self.tracker.objects[ids, 0], self.mid_task_skill, target, qpos, qvel,
+                                       root_xy)
         self.backend.reset(ids, qpos, qvel)
         self.episode_length_buf[ids] = 0
         self.steps[ids] = 0
         self.character.reset(ids)
+        if mid is not None and mid[2].held:
+            rows, obj, start = mid
+            root = torch.cat((start.root_xy, start.height[:, None]), -1)
+            self.character.hold(ids[rows], self.dyn_slot[obj], root, quat_from_yaw(start.yaw), start.obj_pos,
+                                start.obj_quat)
         self.tracker.reset(ids, self.steps, root_xy)
 
     def reset(self, ids: torch.Tensor | None = None) -> TensorDict:

@@ -120,11 +120,15 @@ class PlanTracker:
         if bool(park.any()):
             self.services.trajectory.park(ids[park], root_xy[park])
 
-    def reset(self, ids: torch.Tensor, steps: torch.Tensor, root_xy: torch.Tensor) -> None:
+    def draw_objects(self, ids: torch.Tensor) -> None:
+        """New episodes in envs ids: draw the object of every subtask that has choices."""
         for i, options in self.choices.items():
             gen = self.services.generator
             pick = torch.randint(len(options), (len(ids),), generator=gen, device=gen.device).to(options.device)
             self.objects[ids, i] = options[pick]
+
+    def reset(self, ids: torch.Tensor, steps: torch.Tensor, root_xy: torch.Tensor) -> None:
+        """New episodes in envs ids (objects drawn with `draw_objects`) start their first subtask."""
         self.subtask[ids] = 0
         self.hold[ids] = 0
         self.done[ids] = False

@@ -9,6 +9,10 @@ Pose (`env.init`): `default` = the standing default pose; `random` = a reference
 one, the default pose with N(0, 0.05 rad) hinge noise); `mixed` = `random` with probability
 `env.mixed_init_prob`, else `default`.
 
+Mid-task starts (`env.held_init_prob`, training only): with that probability an episode whose
+first subtask's skill offers them (`Skill.mid_task_start`, e.g. Carry's box carried part of the
+way) starts there instead, the character holding the object where the start says so.
+
 A reference sampler is `fn(n, generator) -> dict` with "root_height" [n] (m), "root_quat"
 [n, 4] (wxyz; its yaw is replaced by the start yaw), "dof_pos" [n, 32], and optionally
 "dof_vel" [n, 32], "root_lin_vel" and "root_ang_vel" [n, 3] in the heading frame.
@@ -25,6 +29,7 @@ import torch
 from detach.character import Character
 from detach.character.body import NUM_DOF, START_HEIGHT, dof_ranges
 from detach.config_schema import RunConfig
+from detach.skills import MidTaskStart, Skill
 from detach.torch_math import quat_conj, quat_from_yaw, quat_mul, yaw_of
 from scene_builder.scene import SceneInfo
 
@@ -42,6 +47,10 @@ class ResetSampler:
         rest = [float(o.pos[2]) for o in scene.objects]
         self.rest_z = torch.tensor(rest + [0.0], device=device)
         """Resting height of each object (bbox centre z at reset), indexed by object; [-1] is 0."""
+        self.obj_rest = torch.tensor([list(o.pos) for o in scene.objects], dtype=torch.float32,
+                                     device=device).reshape(-1, 3)
+        self.obj_half = torch.tensor([list(o.bbox / 2) for o in scene.objects], dtype=torch.float32,
+                                     device=device).reshape(-1, 3)
 
     def _rand(self, *shape: int) -> torch.Tensor:
         return torch.rand(*shape, generator=self.gen, device=self.gen.device).to(self.device)
@@ -96,3 +105,35 @@ class ResetSampler:
             qpos[:, o.qpos_adr + 3:o.qpos_adr + 7] = torch.tensor(
                 [math.cos(o.z_rot / 2), 0.0, 0.0, math.sin(o.z_rot / 2)], device=self.device)
         return qpos, qvel, xy
+
+    def mid_task(self, ids: torch.Tensor, objects: torch.Tensor, skill: Skill, target: torch.Tensor,
+                 qpos: torch.Tensor, qvel: torch.Tensor, root_xy: torch.Tensor
+                 ) -> tuple[torch.Tensor, torch.Tensor, MidTaskStart] | None:
+        """Turn a share `env.held_init_prob` of the starts (qpos, qvel, root_xy of envs ids, as
+        `sample` made them; changed in place) into `skill`'s mid-task starts, its first subtask
+        on objects [n] with fixed target [3]. Returns (rows of ids, their objects, the start) or
+        None when no env was drawn."""
+        pick = self._rand(len(ids)) < self.cfg.env.held_init_prob
+        rows = pick.nonzero(as_tuple=False).squeeze(-1)
+        if len(rows) == 0:
+            return None
+        obj = objects[rows]
+        start = skill.mid_task_start(self.obj_rest[obj], self.obj_half[obj], target.expand(len(rows), 3), self.gen)
+        if start is None:
+            return None
+        m = len(rows)
+        q, v = qpos[rows], qvel[rows]
+        zeros = torch.zeros(m, 3, device=self.device)
+        upright = torch.tensor([1.0, 0.0, 0.0, 0.0], device=self.device).expand(m, 4)
+        self.character.write_root(q, v, self.scene.root_qpos_adr, self.scene.root_qvel_adr, start.root_xy,
+                                  start.height, start.yaw, upright, zeros, zeros)
+        q[:, torch.as_tensor(self.scene.dof_qpos_adr, device=self.device)] = start.hinges
+        v[:, torch.as_tensor(self.scene.dof_qvel_adr, device=self.device)] = 0.0
+        for i in self.scene.dynamic:
+            o = self.scene.objects[i]
+            sel = obj == i
+            q[sel, o.qpos_adr:o.qpos_adr + 3] = start.obj_pos[sel]
+            q[sel, o.qpos_adr + 3:o.qpos_adr + 7] = start.obj_quat[sel]
+            v[sel, o.qvel_adr:o.qvel_adr + 6] = 0.0
+        qpos[rows], qvel[rows], root_xy[rows] = q, v, start.root_xy
+        return rows, obj, start

@@ -6,7 +6,7 @@ A new skill is one module that subclasses `Skill` and calls `register_skill`, pl
 whose plan names it; see docs/ARCHITECTURE.md ("Adding a skill").
 """
 
-from detach.skills.base import RAND, PlanError, RewardTerm, Skill, Subtask
+from detach.skills.base import RAND, MidTaskStart, PlanError, RewardTerm, Skill, Subtask
 from detach.skills.registry import (
     canonical_name, display_name, register_skill, skill_class, skill_index, skill_names, unregister_skill,
 )
@@ -15,5 +15,5 @@ from detach.skills import carry as _carry  # noqa: E402,F401
 from detach.skills import climb as _climb  # noqa: E402,F401
 from detach.skills import sit as _sit  # noqa: E402,F401
 
-__all__ = ["RAND", "PlanError", "RewardTerm", "Skill", "Subtask", "canonical_name", "display_name",
+__all__ = ["RAND", "MidTaskStart", "PlanError", "RewardTerm", "Skill", "Subtask", "canonical_name", "display_name",
            "register_skill", "skill_class", "skill_index", "skill_names", "unregister_skill"]

@@ -14,6 +14,7 @@ A skill module (follow, carry, climb, sit, or a plug-in) subclasses `Skill` and 
   override them as `rewards.terms.<skill>/<term>`);
 - extra episode terminations (`termination_names`, `terminations`);
 - its piece of the scripted oracle (`oracle`);
+- optionally, start states from the middle of its task (`mid_task_start`, `env.held_init_prob`);
 - the motion-clip labels of its style prior (`motion_labels`);
 - display: `display_name` and `color` (eval tables, the dashboard).
 
@@ -71,6 +72,24 @@ class RewardTerm:
 
     fn: Callable[["SkillContext"], torch.Tensor]
     weight: float
+
+
+@dataclass(frozen=True)
+class MidTaskStart:
+    """An episode start from the middle of a skill's task, per env [n, ...]: where the
+    character stands and how it holds itself, where the subtask's object is, and whether the
+    character starts holding it (world frame, metres and radians)."""
+
+    root_xy: torch.Tensor
+    yaw: torch.Tensor
+    height: torch.Tensor
+    """Pelvis height."""
+    hinges: torch.Tensor
+    """[n, 32] hinge angles."""
+    obj_pos: torch.Tensor
+    obj_quat: torch.Tensor
+    """[n, 4] wxyz."""
+    held: bool
 
 
 class Skill:
@@ -142,6 +161,14 @@ class Skill:
     def terminations(self, ctx: "SkillContext") -> dict[str, torch.Tensor]:
         """Extra episode-ending conditions [N] bool (evaluated where the env is on this skill)."""
         return {}
+
+    def mid_task_start(self, obj_rest: torch.Tensor, obj_half: torch.Tensor, target: torch.Tensor,
+                       gen: torch.Generator) -> MidTaskStart | None:
+        """A start state from the middle of this skill's task for n episodes whose first
+        subtask is this skill's: obj_rest [n, 3] the object's resting bbox centre, obj_half
+        [n, 3] its half sizes, target [n, 3] the subtask's fixed target. None (the default):
+        the skill has no such states, and its episodes start as configured (`env.init`)."""
+        return None
 
     def oracle(self, ctx: "SkillContext", cmd: "OracleCommand", active: torch.Tensor) -> None:
         """Write the scripted controller's command for envs on this skill (active [N])."""

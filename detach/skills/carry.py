@@ -12,17 +12,19 @@ from __future__ import annotations
 import torch
 
 from detach.character.body import BODY_NAMES, HANDS, START_HEIGHT
-from detach.skills.base import PlanError, RewardTerm, Skill, Subtask
+from detach.skills.base import MidTaskStart, PlanError, RewardTerm, Skill, Subtask
 from detach.skills.context import OracleCommand, SkillContext
 from detach.skills.kernels import NEAR, approach
 from detach.skills.registry import register_skill
 from detach.skills.scripting import hinge_index
-from detach.torch_math import point_box_distance, quat_rotate, wrap_angle
+from detach.torch_math import point_box_distance, quat_from_yaw, quat_rotate, wrap_angle
 
 GRASP_LIFT = 0.1
 """A box counts as grasped once lifted this far (m) above its resting height."""
 LIFT = 0.2
 """How far (m) the oracle raises a grasped box."""
+HELD_YAW_NOISE = 0.5
+"""A held start faces the destination within +- this (rad)."""
 
 
 def walk_to_box(ctx: SkillContext) -> torch.Tensor:
@@ -108,6 +110,29 @@ class Carry(Skill):
 
     def distance(self, ctx: SkillContext) -> torch.Tensor:
         return (ctx.obj_pos - ctx.target).norm(dim=-1)
+
+    def mid_task_start(self, obj_rest, obj_half, target, gen) -> MidTaskStart:
+        """The box carried part of the way: lifted `LIFT` off its resting height, held in the
+        reach pose in front of the pelvis (as the oracle holds it), at a uniform point of the
+        way from its resting place to the destination, the character facing the destination.
+
+        TokenHSI starts a quarter of its Carry episodes from reference clips of picking up,
+        carrying and putting down a box, the box in the hands; without a walk-to-box-and-grasp
+        success first, a policy never sees what holding and carrying pay. We have no box
+        clips, so the state is built from the oracle's geometry.
+        """
+        n, dev = len(obj_rest), obj_rest.device
+        u = torch.rand(n, generator=gen, device=gen.device).to(dev)
+        noise = (torch.rand(n, generator=gen, device=gen.device).to(dev) * 2 - 1) * HELD_YAW_NOISE
+        route = target[:, :2] - obj_rest[:, :2]
+        box_xy = obj_rest[:, :2] + u[:, None] * route
+        yaw = torch.atan2(route[:, 1], route[:, 0]) + noise
+        hinges, reach = reach_pose((obj_rest[:, 2] + obj_half[:, 2]).cpu())
+        ahead = reach.to(dev) + (obj_half[:, 0] - 0.15).clamp(min=0.05)
+        root_xy = box_xy - torch.stack((yaw.cos(), yaw.sin()), -1) * ahead[:, None]
+        box = torch.cat((box_xy, (obj_rest[:, 2] + LIFT)[:, None]), -1)
+        return MidTaskStart(root_xy, yaw, torch.full((n,), START_HEIGHT + LIFT, device=dev), hinges.to(dev),
+                            box, quat_from_yaw(yaw), held=True)
 
     def update_stats(self, ctx, active, stats) -> None:
         ar = torch.arange(ctx.num_envs, device=self.device)
