@@ -82,7 +82,7 @@ COMMANDS = ("train", "eval", "resume", "sweep", "play", "export", "list", "table
 DEFAULTS = dict(task=None, overrides=[], preset=[], model="detach", seed=0, device="cpu",
                 runs=Path("runs"), dry_run=False, resume=None, eval=None, sweep=None, eval_task=None,
                 eval_on=[], trials=None, no_eval=False, quick=False, jobs=1, models=None,
-                launcher="local", cell=None, video=None)
+                launcher="local", cell=None, video=None, replace=False)
 """Every option a command handler reads; a subcommand's parser sets those it has."""
 
 
@@ -215,6 +215,8 @@ def build_eval_parser() -> argparse.ArgumentParser:
     parser.add_argument("eval", type=Path, metavar="RUN_DIR|CKPT")
     _add_eval_task(parser, "evaluate")
     _add_trials(parser)
+    parser.add_argument("--replace", action="store_true",
+                        help="replace an evaluation of the same task with more trials (refused otherwise)")
     _add_device(parser)
     _add_video(parser, "env 0's first evaluation episode")
     return parser
@@ -629,8 +631,11 @@ def _evaluate(args: argparse.Namespace) -> int:
     eval_task = task_path(args.eval_task, "--task") if args.eval_task is not None else None
     if args.video is not None:
         _choose_gl()  # before anything imports mujoco
-    from detach.runs.session import evaluate_run
+    from detach.runs.session import evaluate_run, smaller_evaluation
 
+    smaller = None if args.replace else smaller_evaluation(run, eval_task, args.trials)
+    if smaller is not None:
+        raise ConfigError(smaller)
     if checkpoint is not None:
         from detach.train.checkpoints import check_model, read_checkpoint
 

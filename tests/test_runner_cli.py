@@ -122,6 +122,23 @@ def test_eval_on_another_task_writes_its_own_file(tmp_path: Path) -> None:
     assert result.plan == ["sit"] and not run.eval_path.exists()
 
 
+def test_a_smaller_evaluation_does_not_replace_a_larger_one_unless_asked(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # a 4-trial check once silently replaced a committed 100-trial eval.json
+    assert cli.main([FOLLOW, "--model", "mlp", "--out", str(tmp_path), "--trials", "3",
+                     "train.max_iterations=1", *TINY]) == 0
+    run = _only_run(tmp_path)
+    before = run.eval_path.read_bytes()
+    capsys.readouterr()
+    assert cli.main(["eval", str(run.path), "--trials", "2"]) == 2
+    err = capsys.readouterr().err
+    assert "holds a 3-trial evaluation" in err and "--replace" in err
+    assert run.eval_path.read_bytes() == before
+    assert cli.main(["eval", str(run.path), "--trials", "2", "--replace"]) == 0
+    assert EvalResult.from_json(json.loads(run.eval_path.read_text())).trials == 2
+    assert cli.main(["eval", str(run.path), "--trials", "2"]) == 0  # as many trials: a re-evaluation
+
+
 def test_list_shows_runs_and_unreadable_folders(tmp_path: Path,
                                                 capsys: pytest.CaptureFixture[str]) -> None:
     assert cli.main([FOLLOW, "--model", "mlp", "--out", str(tmp_path), "--no-eval",

@@ -23,7 +23,7 @@ from detach.eval.episodes import TrainingEpisodes, run_evaluation
 from detach.eval.scene import scene_message
 from detach.models.factory import build_actor_critic
 from detach.run_contract import AGENT_PARAMS_FILE, checkpoint_iteration, eval_file
-from detach.runs.folder import RunFolder, atomic_write_json, atomic_write_text
+from detach.runs.folder import RunFolder, atomic_write_json, atomic_write_text, read_eval
 from detach.runs.mcap_log import RunLogWriter
 from detach.runs.provenance import write_provenance
 from detach.train.checkpoints import CheckpointError, check_model, load_module_weights, read_checkpoint
@@ -83,6 +83,23 @@ def eval_config(cfg: RunConfig, task_path: Path | None) -> RunConfig:
     if task_path is None:
         return cfg
     return dataclasses.replace(cfg, task=load_task(task_path), task_name=Path(task_path).stem)
+
+
+def smaller_evaluation(run: RunFolder, task_path: Path | None, trials: int | None) -> str | None:
+    """Why evaluating with `trials` would replace a larger evaluation of the same task (None
+    when it would not): a quick check must not overwrite the 100-trial figure of a table."""
+    cfg = eval_config(run.config(), task_path)
+    trials = cfg.eval.trials if trials is None else trials
+    own = cfg.task_name == run.config().task_name
+    path = run.path / eval_file(None if own else cfg.task_name)
+    try:
+        old = read_eval(path) if path.exists() else None
+    except (OSError, ValueError):
+        return None  # unreadable: nothing worth keeping
+    if old is None or old.trials <= trials:
+        return None
+    return (f"{path} holds a {old.trials}-trial evaluation of {old.checkpoint}; this {trials}-trial one would "
+            "replace it (pass --replace to do so)")
 
 
 def evaluate_run(run: RunFolder, task_path: Path | None, checkpoint: Path | None,
