@@ -20,12 +20,12 @@ import torch
 
 from detach.config import ConfigError
 from detach.envs.lh_env import make_env
-from detach.models.factory import build_actor_critic
 from detach.models.rsl_rl_models import FlatPolicy
 from detach.run_contract import EXPORT_DIR, EXPORT_FORMATS, checkpoint_file, checkpoint_iteration, export_file
 from detach.runs.folder import RunFolder, atomic_write_json
+from detach.runs.policy import load_policy
 from detach.train.checkpoints import check_model, load_module_weights, read_checkpoint, write_checkpoint
-from detach.train.setup import default_action_std, prepare_assets
+from detach.train.setup import prepare_assets
 
 ONNX_OPSET = 18
 TOLERANCE = 1e-4
@@ -73,15 +73,11 @@ def export_run(run_dir: Path, checkpoint: int | None = None, fmt: str = "onnx",
             raise ConfigError(f"--checkpoint {checkpoint}: no {path.name} (the run has {have or 'none'})",
                               str(run.checkpoints))
     cfg = run.config()
-    state = read_checkpoint(path)
-    check_model(state, path, cfg.model_name, cfg.model.kind)
-    iteration = int(state.get("iter", checkpoint_iteration(path.name) or 0))
+    check_model(read_checkpoint(path), path, cfg.model_name, cfg.model.kind)  # before building anything
     prepare_assets(cfg.task)
     env = make_env(cfg, num_envs=4, device="cpu", eval_mode=True)
-    actor, _critic = build_actor_critic(cfg.model, env.obs_spec, env.get_observations(),
-                                        num_actions=env.num_actions, default_std=default_action_std(cfg))
-    load_module_weights(actor, state["actor_state_dict"], path, "actor")
-    actor.eval()
+    actor, state = load_policy(cfg, env, path)
+    iteration = int(state.get("iter", checkpoint_iteration(path.name) or 0))
     policy = FlatPolicy(actor)
     target = Path(out) if out is not None else run.path / EXPORT_DIR / export_file(iteration, fmt)
     target.parent.mkdir(parents=True, exist_ok=True)

@@ -24,10 +24,10 @@ class PolicyRollout:
 
         from detach.envs.lh_env import make_env
         from detach.eval.scene import scene_message
-        from detach.models.factory import build_actor_critic
+        from detach.runs.policy import load_policy
         from detach.runs.session import eval_config
-        from detach.train.checkpoints import CheckpointError, check_model, load_module_weights, read_checkpoint
-        from detach.train.setup import default_action_std, prepare_assets, seed_everything
+        from detach.train.checkpoints import CheckpointError
+        from detach.train.setup import prepare_assets, seed_everything
 
         self.run = run
         self.cfg = eval_config(run.config(), task_path)
@@ -37,13 +37,7 @@ class PolicyRollout:
         prepare_assets(self.cfg.task)
         seed_everything(self.cfg.seed + 1)
         self.env = make_env(self.cfg, num_envs=1, device=device, eval_mode=True)
-        state = read_checkpoint(self.checkpoint, device)
-        check_model(state, self.checkpoint, self.cfg.model_name, self.cfg.model.kind)
-        self.actor, _critic = build_actor_critic(self.cfg.model, self.env.obs_spec, self.env.get_observations(),
-                                                 num_actions=self.env.num_actions,
-                                                 default_std=default_action_std(self.cfg))
-        load_module_weights(self.actor, state["actor_state_dict"], self.checkpoint, "actor")
-        self.actor.to(device).eval()
+        self.actor, _state = load_policy(self.cfg, self.env, self.checkpoint, device)
         self.scene = scene_message(self.env, self.cfg)
         self.dt = float(self.env.dt)
         self.obs = self.env.get_observations()

@@ -12,7 +12,6 @@ import dataclasses
 from pathlib import Path
 from typing import Sequence
 
-import torch
 import yaml
 
 from detach.config import load_task
@@ -21,14 +20,14 @@ from detach.config_schema import RunConfig
 from detach.envs.lh_env import make_env
 from detach.eval.episodes import TrainingEpisodes, run_evaluation
 from detach.eval.scene import scene_message
-from detach.models.factory import build_actor_critic
 from detach.run_contract import AGENT_PARAMS_FILE, checkpoint_iteration, eval_file
 from detach.runs.folder import RunFolder, atomic_write_json, atomic_write_text, read_eval
 from detach.runs.mcap_log import RunLogWriter
+from detach.runs.policy import load_policy
 from detach.runs.provenance import write_provenance
-from detach.train.checkpoints import CheckpointError, check_model, load_module_weights, read_checkpoint
+from detach.train.checkpoints import CheckpointError
 from detach.train.setup import (
-    build_runner, default_action_std, load_initial_weights, prepare_assets, seed_everything, train_cfg_dict,
+    build_runner, load_initial_weights, prepare_assets, seed_everything, train_cfg_dict,
 )
 
 
@@ -118,12 +117,7 @@ def evaluate_run(run: RunFolder, task_path: Path | None, checkpoint: Path | None
     prepare_assets(cfg.task)
     seed_everything(cfg.seed + 1)
     env = make_env(cfg, num_envs=min(cfg.eval.num_envs, trials), device=device, eval_mode=True)
-    state = read_checkpoint(checkpoint, device)
-    check_model(state, checkpoint, cfg.model_name, cfg.model.kind)
-    actor, _critic = build_actor_critic(cfg.model, env.obs_spec, env.get_observations(),
-                                        num_actions=env.num_actions, default_std=default_action_std(cfg))
-    load_module_weights(actor, state["actor_state_dict"], checkpoint, "actor")
-    actor.to(device).eval()
+    actor, state = load_policy(cfg, env, checkpoint, device)
     own = cfg.task_name == train_cfg.task_name
     log = RunLogWriter(run.log_path, append=True) if own and record else None
     try:

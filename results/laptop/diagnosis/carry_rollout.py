@@ -10,9 +10,8 @@ from pathlib import Path
 from detach.runs.folder import RunFolder
 from detach.runs.session import eval_config
 from detach.envs.lh_env import make_env
-from detach.models.factory import build_actor_critic
-from detach.train.setup import default_action_std, seed_everything
-from detach.train.checkpoints import read_checkpoint, load_module_weights
+from detach.runs.policy import load_policy
+from detach.train.setup import seed_everything
 from detach.skills.carry import HAND_IDS
 from detach.torch_math import point_box_distance
 
@@ -21,12 +20,7 @@ cfg = eval_config(run.config(), None)
 for name in sys.argv[2:]:
     seed_everything(1)
     env = make_env(cfg, num_envs=16, device="cpu", eval_mode=True)
-    path = Path(name)
-    state = read_checkpoint(path, "cpu")
-    actor, _ = build_actor_critic(cfg.model, env.obs_spec, env.get_observations(), num_actions=env.num_actions,
-                                  default_std=default_action_std(cfg))
-    load_module_weights(actor, state["actor_state_dict"], path, "actor")
-    actor.eval()
+    actor, _ = load_policy(cfg, env, Path(name))
     obs = env.get_observations()
     rows = []
     with torch.no_grad():
