@@ -73,3 +73,22 @@ def test_a_carry_stage_started_from_follow_trains_on_its_own_statistics(follow_r
     carry_count = int(state["actor_state_dict"]["obs_normalizer.count"])
     assert 0 < carry_count < int(source["actor_state_dict"]["obs_normalizer.count"]) + 1
     assert carry_count <= 4 * 8  # one iteration of 4 envs x 8 steps: Follow's samples are gone
+
+
+def test_a_frozen_base_policy_keeps_its_statistics_and_holds_unseen_inputs_at_their_value(
+        tmp_path_factory: pytest.TempPathFactory) -> None:
+    """CML's cooperative policy on its frozen meta policy: the meta policy's normaliser is not
+    restarted (it is never updated), and an input Follow never varied normalises to ~0, the
+    value the frozen network saw, instead of (x - mean) / eps."""
+    out = tmp_path_factory.mktemp("cml_runs")
+    assert cli.main(["train", str(ROOT / "configs/tasks/follow.yaml"), "--model", "cml", "--runs", str(out),
+                     *TINY, "train.max_iterations=1", "--no-eval"]) == 0
+    (source,) = find_runs(out)
+    saved = torch.load(sorted(source.checkpoints.glob("model_*.pt"))[-1], weights_only=True)["actor_state_dict"]
+    z, actor = _carry_inputs_after_init(source.path, "cml_incremental", "restart")
+    norm = actor.obs_normalizer
+    assert int(norm.count) == int(saved["obs_normalizer.count"]) > 0  # kept, not restarted
+    unseen = (saved["obs_normalizer._var"] <= 1e-12).reshape(-1)
+    assert 0 < int(unseen.sum()) < unseen.numel()
+    assert float(z[..., unseen].max()) < 1e-3
+    torch.testing.assert_close(norm._mean, saved["obs_normalizer._mean"])
