@@ -5,7 +5,6 @@ action; the multi-objective critic and body-part discriminators stay in both sta
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import pytest

@@ -3,7 +3,6 @@ and `train.init_from`, through the `detach-run` CLI on tiny puppet runs."""
 
 from __future__ import annotations
 
-import json
 import signal
 import subprocess
 import sys

@@ -13,7 +13,6 @@ from __future__ import annotations
 import os
 
 from detach.config import ConfigError
-from detach.config_schema import RunConfig
 
 
 def world_size() -> int:
