@@ -296,6 +296,12 @@ class TrainCfg:
     """Start from another run's weights: a run folder (its latest checkpoint) or a checkpoint
     file. Policy, critic, their normalisers and the discriminators are loaded; the optimiser
     and the iteration count start afresh (the progressive protocol: docs/PROTOCOL.md)."""
+    init_action_std: float | None = None
+    """With `init_from`: the action std the policy starts with, replacing the loaded one (null
+    keeps it). At the learning rates a later stage runs at (1e-5, where rsl-rl's adaptive
+    schedule holds it) the std parameter moves by ~1e-5 per step, so a stage keeps its source's
+    exploration noise for good: the puppet's 1.0 (2 m/s of root speed per unit) made every
+    Carry policy drop a held box within a few steps."""
     init_normalizers: Literal["restart", "keep"] = "restart"
     """With `init_from`: `restart` (default) starts the policy's and critic's observation
     statistics afresh on this run's task (the first rollout sets them); `keep` continues the
@@ -405,7 +411,7 @@ VALUE_RANGES: dict[str, Range] = {
     "train.learning_rate": POSITIVE, "train.desired_kl": POSITIVE, "train.gamma": FRACTION, "train.lam": FRACTION,
     "train.clip_param": POSITIVE, "train.entropy_coef": AT_LEAST_0, "train.value_loss_coef": AT_LEAST_0,
     "train.num_learning_epochs": AT_LEAST_1, "train.num_mini_batches": AT_LEAST_1,
-    "train.max_grad_norm": POSITIVE, "train.torch_threads": AT_LEAST_0,
+    "train.max_grad_norm": POSITIVE, "train.init_action_std": POSITIVE, "train.torch_threads": AT_LEAST_0,
     "train.stages.pretrain": AT_LEAST_0, "train.stages.fusion": AT_LEAST_0, "train.stages.joint": AT_LEAST_0,
     "train.amp.task_reward_weight": AT_LEAST_0, "train.amp.style_reward_weight": AT_LEAST_0,
     "train.amp.grad_penalty": AT_LEAST_0, "train.amp.logit_reg": AT_LEAST_0, "train.amp.weight_decay": AT_LEAST_0,

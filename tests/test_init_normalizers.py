@@ -92,3 +92,26 @@ def test_a_frozen_base_policy_keeps_its_statistics_and_holds_unseen_inputs_at_th
     assert 0 < int(unseen.sum()) < unseen.numel()
     assert float(z[..., unseen].max()) < 1e-3
     torch.testing.assert_close(norm._mean, saved["obs_normalizer._mean"])
+
+
+def test_a_later_stage_can_start_with_a_smaller_action_std(follow_run: Path, tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """At the later stages' learning rate the std parameter never moves: the puppet kept
+    Follow's std 1.0 through Carry, and its noise dropped every held box within steps."""
+    cfg = complete_run_config(resolve(ROOT / "configs/tasks/carry.yaml", "mlp", TINY + [
+        f"train.init_from={follow_run}", "train.init_action_std=0.3"]))
+    env, runner = build_runner(cfg, None, "cpu", progress=False)
+    line = load_initial_weights(runner, cfg)
+    assert "action std 1.00 -> 0.3" in line
+    torch.testing.assert_close(runner.alg.actor.distribution.std_param,
+                               torch.full((env.num_actions,), 0.3))
+    kept = complete_run_config(resolve(ROOT / "configs/tasks/carry.yaml", "mlp", TINY + [
+        f"train.init_from={follow_run}"]))
+    _env, runner = build_runner(kept, None, "cpu", progress=False)
+    load_initial_weights(runner, kept)
+    assert float(runner.alg.actor.distribution.std_param.min()) > 0.9  # the source's, kept
+    capsys.readouterr()
+    assert cli.main(["train", str(ROOT / "configs/tasks/carry.yaml"), "--model", "mlp", "--runs",
+                     str(tmp_path / "runs"), *TINY, "train.init_action_std=0.3"]) == 2
+    assert "train.init_action_std" in capsys.readouterr().err
+    assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())

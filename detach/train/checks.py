@@ -67,6 +67,9 @@ def complete_run_config(cfg: RunConfig) -> RunConfig:
     if base_key and not cfg.train.init_from:
         raise origin.error(("model", base_key), f"model {cfg.model_name} trains on top of an earlier stage's "
                            "policy: set train.init_from to that run folder or checkpoint")
+    if cfg.train.init_action_std is not None and not cfg.train.init_from:
+        raise origin.error(("train", "init_action_std"), "sets the action std of a policy loaded with "
+                           "train.init_from, and this run starts from scratch (model.init_noise_std sets its std)")
     if cfg.train.init_from:
         try:
             find_init_checkpoint(cfg.train.init_from)

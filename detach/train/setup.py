@@ -7,6 +7,8 @@ DETACH's stage hooks and auxiliary losses. The run folder around it is `detach.r
 
 from __future__ import annotations
 
+import math
+
 import random
 from pathlib import Path
 
@@ -215,7 +217,28 @@ def load_initial_weights(runner: DetachRunner, cfg: RunConfig) -> str:
     restarted = ""
     if cfg.train.init_normalizers == "restart":
         restarted = f", {restart_normalizers(alg.actor, alg.critic)} observation normalisers restarted"
+    if cfg.train.init_action_std is not None:
+        restarted += f", action std {set_action_std(alg.actor, cfg.train.init_action_std):.2f} -> " \
+                     f"{cfg.train.init_action_std:g}"
     return f"initialised from {checkpoint} (model {source_model}, iteration {state.get('iter', '?')}{restarted})"
+
+
+def set_action_std(actor: torch.nn.Module, std: float) -> float:
+    """Set every action dimension's std of `actor`'s Gaussian (rsl-rl's scalar or log
+    parameter) to `std`; returns the mean std it had."""
+    dist = getattr(actor, "distribution", None)
+    if hasattr(dist, "std_param"):
+        before = float(dist.std_param.mean())
+        with torch.no_grad():
+            dist.std_param.fill_(std)
+    elif hasattr(dist, "log_std_param"):
+        before = float(dist.log_std_param.exp().mean())
+        with torch.no_grad():
+            dist.log_std_param.fill_(math.log(std))
+    else:
+        raise ConfigError(f"train.init_action_std: the policy's distribution ({type(dist).__name__}) has no "
+                          "state-independent std to set")
+    return before
 
 
 def restart_normalizers(*modules: torch.nn.Module) -> int:
