@@ -28,9 +28,13 @@ HELD_YAW_NOISE = 0.5
 
 
 def walk_to_box(ctx: SkillContext) -> torch.Tensor:
+    """Walk to the box; 1 once the box is lifted or at the destination (each later stage of
+    the task pays the earlier stages' terms in full: a box held in front of the pelvis is
+    more than `NEAR` away from it)."""
     r = approach(ctx, ctx.obj_pos)
     delivered = (ctx.obj_pos[:, :2] - ctx.target[:, :2]).norm(dim=-1) < NEAR
-    return torch.where(delivered, torch.ones_like(r), r)
+    lifted = ctx.obj_pos[:, 2] >= ctx.obj_rest_z + GRASP_LIFT
+    return torch.where(delivered | lifted, torch.ones_like(r), r)
 
 
 HAND_IDS = [BODY_NAMES.index(h) for h in HANDS]
@@ -113,8 +117,9 @@ class Carry(Skill):
 
     def mid_task_start(self, obj_rest, obj_half, target, gen) -> MidTaskStart:
         """The box carried part of the way: lifted `LIFT` off its resting height, held in the
-        reach pose in front of the pelvis (as the oracle holds it), at a uniform point of the
-        way from its resting place to the destination, the character facing the destination.
+        reach pose in front of a pelvis at the standing height (where a character stands on
+        its legs whatever lower height it asks for), at a uniform point of the way from its
+        resting place to the destination, the character facing the destination.
 
         TokenHSI starts a quarter of its Carry episodes from reference clips of picking up,
         carrying and putting down a box, the box in the hands; without a walk-to-box-and-grasp
@@ -127,11 +132,11 @@ class Carry(Skill):
         route = target[:, :2] - obj_rest[:, :2]
         box_xy = obj_rest[:, :2] + u[:, None] * route
         yaw = torch.atan2(route[:, 1], route[:, 0]) + noise
-        hinges, reach = reach_pose((obj_rest[:, 2] + obj_half[:, 2]).cpu())
+        hinges, reach = reach_pose((obj_rest[:, 2] + obj_half[:, 2] + LIFT).cpu())
         ahead = reach.to(dev) + (obj_half[:, 0] - 0.15).clamp(min=0.05)
         root_xy = box_xy - torch.stack((yaw.cos(), yaw.sin()), -1) * ahead[:, None]
         box = torch.cat((box_xy, (obj_rest[:, 2] + LIFT)[:, None]), -1)
-        return MidTaskStart(root_xy, yaw, torch.full((n,), START_HEIGHT + LIFT, device=dev), hinges.to(dev),
+        return MidTaskStart(root_xy, yaw, torch.full((n,), START_HEIGHT, device=dev), hinges.to(dev),
                             box, quat_from_yaw(yaw), held=True)
 
     def update_stats(self, ctx, active, stats) -> None:
