@@ -1,4 +1,4 @@
-"""`env.held_init_prob`: Carry episodes that start with the box carried part of the way
+"""`env.mid_task_init_prob`: Carry episodes that start with the box carried part of the way
 (TokenHSI's hybrid initialisation from box clips). Without them a Carry policy that never
 grasps never learns what holding and carrying pay (results/laptop/README.md, "Carry")."""
 
@@ -10,7 +10,8 @@ import pytest
 import torch
 
 from detach import cli
-from detach.character.puppet import GRASP_ACTION
+from detach.character.puppet import GRASP_ACTION, GRASP_HAND_DIST
+from detach.torch_math import point_box_distance
 from detach.character.body import START_HEIGHT
 from detach.config import resolve
 from detach.envs.lh_env import make_env
@@ -21,33 +22,41 @@ CARRY = ROOT / "configs/tasks/carry.yaml"
 
 
 def _env(prob: float, eval_mode: bool = False, n: int = 16):
-    cfg = resolve(CARRY, "mlp", ["env.character=puppet", f"env.held_init_prob={prob}"])
+    cfg = resolve(CARRY, "mlp", ["env.character=puppet", f"env.mid_task_init_prob={prob}"])
     return make_env(cfg, num_envs=n, verbose=False, eval_mode=eval_mode)
 
 
-def test_held_starts_carry_the_episodes_box_lifted_between_its_place_and_the_destination() -> None:
-    env = _env(1.0)
+def test_mid_task_starts_hold_the_episodes_box_up_on_its_way_or_stand_at_it() -> None:
+    env = _env(1.0, n=32)
     ar = torch.arange(env.num_envs)
     box = env.tracker.objects[:, 0]
     st = env.state
-    assert torch.equal(env.character.held_object(), env.dyn_slot[box])  # the episode's own box
+    held = env.character.held_object() >= 0
+    assert 0.5 < float(held.float().mean()) < 0.95  # a quarter start at the box, not holding it
+    assert torch.equal(env.character.held_object()[held], env.dyn_slot[box][held])  # the episode's own box
     rest = env.resets.obj_rest[box]
-    assert torch.allclose(st.obj_pos[ar, box, 2], rest[:, 2] + LIFT, atol=1e-4)
+    assert torch.allclose(st.obj_pos[ar, box, 2][held], rest[held, 2] + LIFT, atol=1e-4)
+    assert torch.allclose(st.obj_pos[ar, box][~held], rest[~held], atol=1e-3)  # at the box: where it rests
     target = torch.tensor(env.plan[0].fixed_target)
     to_dest = (st.obj_pos[ar, box, :2] - target[:2]).norm(dim=-1)
     assert bool((to_dest <= (rest[:, :2] - target[:2]).norm(dim=-1) + 1e-4).all())  # on the way, not beyond
-    assert len(set(to_dest.round(decimals=2).tolist())) > env.num_envs // 2  # spread along the way
+    assert len(set(to_dest[held].round(decimals=2).tolist())) > int(held.sum()) // 2  # spread along the way
     assert bool(((st.root_pos[:, 2] - START_HEIGHT).abs() < 1e-3).all())
+    hands = st.body_pos[:, env.index.hands]
+    near = point_box_distance(hands, st.obj_pos[ar, box][:, None], st.obj_quat[ar, box][:, None],
+                              env.resets.obj_half[box][:, None]).max(-1).values
+    tall = env.resets.obj_half[box][:, 2] >= 0.3  # the oracle's reach pose cannot reach 0.5 m lids
+    assert bool((near[~held & tall] < GRASP_HAND_DIST).all())  # grasping is one action away
     ctx = env.context()
-    assert bool((walk_to_box(ctx) == 1.0).all()) and bool((hands_on_box(ctx) == 1.0).all())  # stages done
+    assert bool((walk_to_box(ctx)[held] == 1.0).all()) and bool((hands_on_box(ctx)[held] == 1.0).all())
     # holding on keeps the box up, even with the pelvis asked lower than the legs allow (a
     # Follow policy asks for 0.5 m and stands at 0.93 m); letting go drops it
     a = torch.zeros(env.num_envs, env.num_actions)
     a[:, GRASP_ACTION], a[:, 35] = 1.0, -0.3
     for _ in range(20):
         env.step(a)
-    kept = env.episode_length_buf == 20
-    assert int(kept.sum()) >= env.num_envs // 2
+    kept = (env.episode_length_buf == 20) & held
+    assert int(kept.sum()) >= env.num_envs // 3
     z = env.state.obj_pos[ar, box, 2]
     assert torch.allclose(z[kept], rest[kept, 2] + LIFT, atol=0.02)
     a[:, GRASP_ACTION] = -1.0
@@ -55,7 +64,7 @@ def test_held_starts_carry_the_episodes_box_lifted_between_its_place_and_the_des
         env.step(a)
     assert bool((env.character.held_object() == -1).all())
     z = env.state.obj_pos[ar, box, 2]
-    kept = env.episode_length_buf == 40
+    kept = (env.episode_length_buf == 40) & held
     assert bool((z[kept] < rest[kept, 2] + LIFT - 0.05).all())
 
 
@@ -63,15 +72,15 @@ def test_evaluation_and_the_default_never_start_holding() -> None:
     assert bool((_env(1.0, eval_mode=True).character.held_object() == -1).all())
     assert bool((_env(0.0).character.held_object() == -1).all())
     half = _env(0.5, n=64).character.held_object()
-    assert 12 < int((half >= 0).sum()) < 52
+    assert 8 < int((half >= 0).sum()) < 44  # 0.5 x 3/4 of 64 = 24 expected
 
 
 def test_a_character_that_cannot_hold_is_a_config_error(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     rc = cli.main(["train", "carry", "--model", "mlp", "--runs", str(tmp_path), "--no-eval",
-                   "env.character=humanoid", "env.held_init_prob=0.25", "train.max_iterations=1"])
+                   "env.character=humanoid", "env.mid_task_init_prob=0.25", "train.max_iterations=1"])
     err = capsys.readouterr().err
     assert rc == 2
-    assert "env.held_init_prob" in err and "humanoid" in err
+    assert "env.mid_task_init_prob" in err and "humanoid" in err
     assert not any(tmp_path.iterdir())
 
 
@@ -95,3 +104,18 @@ def test_a_held_box_moving_with_the_character_is_not_penalised_as_thrown() -> No
     ctx.held = torch.full_like(ctx.held, -1)  # the same motion of a box nobody holds
     _, parts = env.rewards.compute(ctx)
     assert bool((parts["penalty/dyn_obj_speed"][fast] < -0.1).all())
+
+
+def test_a_grasp_lets_go_only_well_below_zero() -> None:
+    """Exploration noise around a positive grasp mean must not drop the box: with a release at
+    0, a mean of 0.45 and std 0.3 let go at 7% of the steps."""
+    env = _env(1.0, n=16)
+    held = env.character.held_object() >= 0
+    a = torch.zeros(env.num_envs, env.num_actions)
+    a[:, GRASP_ACTION] = -0.3
+    for _ in range(5):
+        env.step(a)
+    assert torch.equal(env.character.held_object() >= 0, held)
+    a[:, GRASP_ACTION] = -0.6
+    env.step(a)
+    assert bool((env.character.held_object() == -1).all())

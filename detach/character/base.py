@@ -90,7 +90,7 @@ class Character(ABC):
     joint_power_weight: ClassVar[float] = 1.0
     scriptable: ClassVar[bool] = False
     can_hold: ClassVar[bool] = False
-    """`hold` can start an episode with an object held (`env.held_init_prob`)."""
+    """`hold` can start an episode with an object held (`env.mid_task_init_prob`)."""
 
     def __init__(self) -> None:
         rng = torch.as_tensor(dof_ranges(), dtype=torch.float32)

@@ -94,7 +94,7 @@ class LHEnv(VecEnv):
                                       self.max_episode_length, self.max_transition_steps)
         self.resets = ResetSampler(cfg, self.scene, self.model, self.character, self.gen, self.device)
         self.tracker = PlanTracker(self.plan, self.services, self.index, self.resets.rest_z, self.num_envs)
-        self.mid_task_skill = self._mid_task_skill(ec.held_init_prob)
+        self.mid_task_skill = self._mid_task_skill(ec.mid_task_init_prob)
         self.rewards = RewardManager(cfg.rewards)
         self.terminations = Terminations(ec, self.tracker.skills)
         self.observations = ObservationBuilder(ec, self.num_envs, len(skill_names()), self.num_actions, raster,
@@ -171,8 +171,8 @@ class LHEnv(VecEnv):
         if self.eval_mode or prob <= 0.0:
             return None
         if not self.character.can_hold:
-            raise ValueError(f"env.held_init_prob: {prob} starts episodes holding an object, which character "
-                             f"'{self.character.name}' cannot; use env.character=puppet or held_init_prob 0")
+            raise ValueError(f"env.mid_task_init_prob: {prob} starts episodes holding an object, which character "
+                             f"'{self.character.name}' cannot; use env.character=puppet or mid_task_init_prob 0")
         first = self.plan[0]
         skill = next(s for s in self.tracker.skills.values() if s.name == first.skill)
         return skill if first.fixed_target is not None and (first.obj >= 0 or first.choices) else None
@@ -189,11 +189,12 @@ class LHEnv(VecEnv):
         self.episode_length_buf[ids] = 0
         self.steps[ids] = 0
         self.character.reset(ids)
-        if mid is not None and mid[2].held:
+        if mid is not None and bool(mid[2].held.any()):
             rows, obj, start = mid
-            root = torch.cat((start.root_xy, start.height[:, None]), -1)
-            self.character.hold(ids[rows], self.dyn_slot[obj], root, quat_from_yaw(start.yaw), start.obj_pos,
-                                start.obj_quat)
+            h = start.held
+            root = torch.cat((start.root_xy, start.height[:, None]), -1)[h]
+            self.character.hold(ids[rows[h]], self.dyn_slot[obj[h]], root, quat_from_yaw(start.yaw[h]),
+                                start.obj_pos[h], start.obj_quat[h])
         self.tracker.reset(ids, self.steps, root_xy)
 
     def reset(self, ids: torch.Tensor | None = None) -> TensorDict:

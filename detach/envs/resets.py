@@ -9,7 +9,7 @@ Pose (`env.init`): `default` = the standing default pose; `random` = a reference
 one, the default pose with N(0, 0.05 rad) hinge noise); `mixed` = `random` with probability
 `env.mixed_init_prob`, else `default`.
 
-Mid-task starts (`env.held_init_prob`, training only): with that probability an episode whose
+Mid-task starts (`env.mid_task_init_prob`, training only): with that probability an episode whose
 first subtask's skill offers them (`Skill.mid_task_start`, e.g. Carry's box carried part of the
 way) starts there instead, the character holding the object where the start says so.
 
@@ -109,11 +109,11 @@ class ResetSampler:
     def mid_task(self, ids: torch.Tensor, objects: torch.Tensor, skill: Skill, target: torch.Tensor,
                  qpos: torch.Tensor, qvel: torch.Tensor, root_xy: torch.Tensor
                  ) -> tuple[torch.Tensor, torch.Tensor, MidTaskStart] | None:
-        """Turn a share `env.held_init_prob` of the starts (qpos, qvel, root_xy of envs ids, as
+        """Turn a share `env.mid_task_init_prob` of the starts (qpos, qvel, root_xy of envs ids, as
         `sample` made them; changed in place) into `skill`'s mid-task starts, its first subtask
         on objects [n] with fixed target [3]. Returns (rows of ids, their objects, the start) or
         None when no env was drawn."""
-        pick = self._rand(len(ids)) < self.cfg.env.held_init_prob
+        pick = self._rand(len(ids)) < self.cfg.env.mid_task_init_prob
         rows = pick.nonzero(as_tuple=False).squeeze(-1)
         if len(rows) == 0:
             return None

@@ -14,7 +14,7 @@ A skill module (follow, carry, climb, sit, or a plug-in) subclasses `Skill` and 
   override them as `rewards.terms.<skill>/<term>`);
 - extra episode terminations (`termination_names`, `terminations`);
 - its piece of the scripted oracle (`oracle`);
-- optionally, start states from the middle of its task (`mid_task_start`, `env.held_init_prob`);
+- optionally, start states from the middle of its task (`mid_task_start`, `env.mid_task_init_prob`);
 - the motion-clip labels of its style prior (`motion_labels`);
 - display: `display_name` and `color` (eval tables, the dashboard).
 
@@ -89,7 +89,8 @@ class MidTaskStart:
     obj_pos: torch.Tensor
     obj_quat: torch.Tensor
     """[n, 4] wxyz."""
-    held: bool
+    held: torch.Tensor
+    """[n] bool: the character starts holding the object."""
 
 
 class Skill:

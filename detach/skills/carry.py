@@ -25,6 +25,9 @@ LIFT = 0.2
 """How far (m) the oracle raises a grasped box."""
 HELD_YAW_NOISE = 0.5
 """A held start faces the destination within +- this (rad)."""
+PICK_UP_SHARE = 0.25
+"""Share of the mid-task starts at the box, hands on its lid, not yet grasped (TokenHSI's
+pick-up clips are a quarter of its clips that start with a box: pick up 0.1, carry 0.3)."""
 
 
 def walk_to_box(ctx: SkillContext) -> torch.Tensor:
@@ -116,28 +119,32 @@ class Carry(Skill):
         return (ctx.obj_pos - ctx.target).norm(dim=-1)
 
     def mid_task_start(self, obj_rest, obj_half, target, gen) -> MidTaskStart:
-        """The box carried part of the way: lifted `LIFT` off its resting height, held in the
-        reach pose in front of a pelvis at the standing height (where a character stands on
-        its legs whatever lower height it asks for), at a uniform point of the way from its
-        resting place to the destination, the character facing the destination.
+        """Either (`PICK_UP_SHARE`) at the box, in the oracle's reach pose with the hands on its
+        resting lid, not yet holding it; or the box carried part of the way: lifted `LIFT`,
+        held in the reach pose at a uniform point of the way from its resting place to the
+        destination. The character faces the destination with its pelvis at the standing
+        height (where it stands on its legs whatever lower height it asks for).
 
         TokenHSI starts a quarter of its Carry episodes from reference clips of picking up,
-        carrying and putting down a box, the box in the hands; without a walk-to-box-and-grasp
-        success first, a policy never sees what holding and carrying pay. We have no box
-        clips, so the state is built from the oracle's geometry.
+        carrying and putting down a box; without a walk-to-box-and-grasp success first, a
+        policy never sees what holding and carrying pay. We have no box clips, so the states
+        are built from the oracle's geometry.
         """
         n, dev = len(obj_rest), obj_rest.device
         u = torch.rand(n, generator=gen, device=gen.device).to(dev)
         noise = (torch.rand(n, generator=gen, device=gen.device).to(dev) * 2 - 1) * HELD_YAW_NOISE
+        held = torch.rand(n, generator=gen, device=gen.device).to(dev) >= PICK_UP_SHARE
+        u = torch.where(held, u, torch.zeros_like(u))
+        lift = torch.where(held, torch.full_like(u, LIFT), torch.zeros_like(u))
         route = target[:, :2] - obj_rest[:, :2]
         box_xy = obj_rest[:, :2] + u[:, None] * route
         yaw = torch.atan2(route[:, 1], route[:, 0]) + noise
-        hinges, reach = reach_pose((obj_rest[:, 2] + obj_half[:, 2] + LIFT).cpu())
+        hinges, reach = reach_pose((obj_rest[:, 2] + obj_half[:, 2] + lift).cpu())
         ahead = reach.to(dev) + (obj_half[:, 0] - 0.15).clamp(min=0.05)
         root_xy = box_xy - torch.stack((yaw.cos(), yaw.sin()), -1) * ahead[:, None]
-        box = torch.cat((box_xy, (obj_rest[:, 2] + LIFT)[:, None]), -1)
+        box = torch.cat((box_xy, (obj_rest[:, 2] + lift)[:, None]), -1)
         return MidTaskStart(root_xy, yaw, torch.full((n,), START_HEIGHT, device=dev), hinges.to(dev),
-                            box, quat_from_yaw(yaw), held=True)
+                            box, quat_from_yaw(yaw), held=held)
 
     def update_stats(self, ctx, active, stats) -> None:
         ar = torch.arange(ctx.num_envs, device=self.device)

@@ -29,8 +29,8 @@ def complete_run_config(cfg: RunConfig) -> RunConfig:
         character = character_class(cfg.env.character)
     except ValueError as exc:
         raise origin.error(("env", "character"), str(exc)) from None
-    if cfg.env.held_init_prob > 0 and not character.can_hold:
-        raise origin.error(("env", "held_init_prob"), f"starts episodes holding an object, which character "
+    if cfg.env.mid_task_init_prob > 0 and not character.can_hold:
+        raise origin.error(("env", "mid_task_init_prob"), f"starts episodes holding an object, which character "
                            f"'{cfg.env.character}' cannot (a puppet can); set it to 0 or use env.character=puppet")
     try:
         check_backend(cfg.sim.backend)
