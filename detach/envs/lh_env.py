@@ -32,11 +32,11 @@ from detach.envs.terminations import Terminations
 from detach.sim import make_backend, sim_settings
 from detach.sim.raster import Raster
 from detach.sim.state import SceneIndex, SimState, read_state
-from detach.torch_math import quat_from_yaw
 from detach.skills import PlanError, Skill, skill_names
 from detach.skills.context import SkillContext, SkillServices
 from detach.skills.plan import compile_plan, plan_error_text
 from detach.skills.trajectories import TrajectoryReference
+from detach.torch_math import quat_from_yaw
 from scene_builder.scene import compile_scene
 
 

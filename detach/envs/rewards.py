@@ -8,9 +8,10 @@ velocity| over the 32 hinges (W, scaled by the character's `joint_power_weight`)
 (m/s) to discourage kicking or throwing boxes; an object the character holds by a constraint
 (the puppet's grasp) is exempt, since it moves as the character's own body does: under the
 puppet's exploration noise a held box moved at a median 2.5 m/s and the penalty (1.1 per
-step) outweighed everything holding it earned, so policies learned to drop it. `RewardManager.table()` lists the active
-terms with their weights at start-up. `rewards.paid_skills` limits the paid terms to some
-skills (the zero-shot reading of the paper's protocol: climb and sit never rewarded).
+step) outweighed everything holding it earned, so policies learned to drop it.
+`RewardManager.table()` lists the active terms with their weights at start-up.
+`rewards.paid_skills` limits the paid terms to some skills (the zero-shot reading of the
+paper's protocol: climb and sit never rewarded).
 """
 
 from __future__ import annotations
