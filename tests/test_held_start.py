@@ -44,8 +44,8 @@ def test_mid_task_starts_hold_the_episodes_box_up_on_its_way_or_stand_at_it() ->
     assert bool(((st.root_pos[:, 2] - START_HEIGHT).abs() < 1e-3).all())
     hands = st.body_pos[:, env.index.hands]
     near = point_box_distance(hands, st.obj_pos[ar, box][:, None], st.obj_quat[ar, box][:, None],
-                              env.resets.obj_half[box][:, None]).max(-1).values
-    tall = env.resets.obj_half[box][:, 2] >= 0.3  # the oracle's reach pose cannot reach 0.5 m lids
+                              env.index.obj_half[box][:, None]).max(-1).values
+    tall = env.index.obj_half[box][:, 2] >= 0.3  # the oracle's reach pose cannot reach 0.5 m lids
     assert bool((near[~held & tall] < GRASP_HAND_DIST).all())  # grasping is one action away
     ctx = env.context()
     assert bool((walk_to_box(ctx)[held] == 1.0).all()) and bool((hands_on_box(ctx)[held] == 1.0).all())

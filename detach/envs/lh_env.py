@@ -95,6 +95,8 @@ class LHEnv(VecEnv):
         self.resets = ResetSampler(cfg, self.scene, self.model, self.character, self.gen, self.device)
         self.tracker = PlanTracker(self.plan, self.services, self.index, self.resets.rest_z, self.num_envs)
         self.mid_task_skill = self._mid_task_skill(ec.mid_task_init_prob)
+        self.mid_task_target = None if self.mid_task_skill is None else torch.tensor(
+            self.plan[0].fixed_target, dtype=torch.float32, device=self.device)
         self.rewards = RewardManager(cfg.rewards)
         self.terminations = Terminations(ec, self.tracker.skills)
         self.observations = ObservationBuilder(ec, self.num_envs, len(skill_names()), self.num_actions, raster,
@@ -182,9 +184,8 @@ class LHEnv(VecEnv):
         self.tracker.draw_objects(ids)
         mid = None
         if self.mid_task_skill is not None:
-            target = torch.tensor(self.plan[0].fixed_target, dtype=torch.float32, device=self.device)
-            mid = self.resets.mid_task(ids, self.tracker.objects[ids, 0], self.mid_task_skill, target, qpos, qvel,
-                                       root_xy)
+            mid = self.resets.mid_task(ids, self.tracker.objects[ids, 0], self.mid_task_skill, self.mid_task_target,
+                                       self.index.obj_half, qpos, qvel, root_xy)
         self.backend.reset(ids, qpos, qvel)
         self.episode_length_buf[ids] = 0
         self.steps[ids] = 0

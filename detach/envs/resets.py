@@ -44,13 +44,11 @@ class ResetSampler:
         self.nv = model.nv
         self.reference_sampler: ReferenceSampler | None = None
         self.init_xy = torch.tensor(cfg.task.humanoid.init_pos2d, dtype=torch.float32, device=device)
-        rest = [float(o.pos[2]) for o in scene.objects]
-        self.rest_z = torch.tensor(rest + [0.0], device=device)
-        """Resting height of each object (bbox centre z at reset), indexed by object; [-1] is 0."""
         self.obj_rest = torch.tensor([list(o.pos) for o in scene.objects], dtype=torch.float32,
                                      device=device).reshape(-1, 3)
-        self.obj_half = torch.tensor([list(o.bbox / 2) for o in scene.objects], dtype=torch.float32,
-                                     device=device).reshape(-1, 3)
+        """Resting bbox centre of each object (its position at reset), indexed by object."""
+        self.rest_z = torch.cat((self.obj_rest[:, 2], torch.zeros(1, device=device)))
+        """Resting height of each object, indexed by object; [-1] (no object) is 0."""
 
     def _rand(self, *shape: int) -> torch.Tensor:
         return torch.rand(*shape, generator=self.gen, device=self.gen.device).to(self.device)
@@ -107,18 +105,19 @@ class ResetSampler:
         return qpos, qvel, xy
 
     def mid_task(self, ids: torch.Tensor, objects: torch.Tensor, skill: Skill, target: torch.Tensor,
-                 qpos: torch.Tensor, qvel: torch.Tensor, root_xy: torch.Tensor
+                 obj_half: torch.Tensor, qpos: torch.Tensor, qvel: torch.Tensor, root_xy: torch.Tensor
                  ) -> tuple[torch.Tensor, torch.Tensor, MidTaskStart] | None:
         """Turn a share `env.mid_task_init_prob` of the starts (qpos, qvel, root_xy of envs ids, as
         `sample` made them; changed in place) into `skill`'s mid-task starts, its first subtask
-        on objects [n] with fixed target [3]. Returns (rows of ids, their objects, the start) or
-        None when no env was drawn."""
+        on objects [n] with fixed target [3]; obj_half [K, 3] the half sizes of every scene
+        object (`SceneIndex.obj_half`). Returns (rows of ids, their objects, the start) or None
+        when no env was drawn."""
         pick = self._rand(len(ids)) < self.cfg.env.mid_task_init_prob
         rows = pick.nonzero(as_tuple=False).squeeze(-1)
         if len(rows) == 0:
             return None
         obj = objects[rows]
-        start = skill.mid_task_start(self.obj_rest[obj], self.obj_half[obj], target.expand(len(rows), 3), self.gen)
+        start = skill.mid_task_start(self.obj_rest[obj], obj_half[obj], target.expand(len(rows), 3), self.gen)
         if start is None:
             return None
         m = len(rows)

@@ -84,13 +84,19 @@ def eval_config(cfg: RunConfig, task_path: Path | None) -> RunConfig:
     return dataclasses.replace(cfg, task=load_task(task_path), task_name=Path(task_path).stem)
 
 
+def eval_path(run: RunFolder, train_cfg: RunConfig, cfg: RunConfig) -> Path:
+    """Where an evaluation of `cfg` (`eval_config` of the run's `train_cfg`) is written:
+    eval.json on the run's own task, eval_<task>.json on another."""
+    return run.path / eval_file(None if cfg.task_name == train_cfg.task_name else cfg.task_name)
+
+
 def smaller_evaluation(run: RunFolder, task_path: Path | None, trials: int | None) -> str | None:
     """Why evaluating with `trials` would replace a larger evaluation of the same task (None
     when it would not): a quick check must not overwrite the 100-trial figure of a table."""
-    cfg = eval_config(run.config(), task_path)
+    train_cfg = run.config()
+    cfg = eval_config(train_cfg, task_path)
     trials = cfg.eval.trials if trials is None else trials
-    own = cfg.task_name == run.config().task_name
-    path = run.path / eval_file(None if own else cfg.task_name)
+    path = eval_path(run, train_cfg, cfg)
     try:
         old = read_eval(path) if path.exists() else None
     except (OSError, ValueError):
@@ -130,7 +136,7 @@ def evaluate_run(run: RunFolder, task_path: Path | None, checkpoint: Path | None
     result.checkpoint = str(checkpoint.relative_to(run.path)) if checkpoint.is_relative_to(run.path) \
         else str(checkpoint)
     result.iteration = int(state.get("iter", -1))
-    path = run.path / eval_file(None if own else cfg.task_name)
+    path = eval_path(run, train_cfg, cfg)
     atomic_write_json(path, result.to_json())
     mean, chain = result.lh_mean, result.lh_chain
     print(f"evaluation on {cfg.task_name} over {result.trials} trials: "

@@ -30,14 +30,18 @@ PICK_UP_SHARE = 0.25
 pick-up clips are a quarter of its clips that start with a box: pick up 0.1, carry 0.3)."""
 
 
+def box_lifted(ctx: SkillContext) -> torch.Tensor:
+    """[N] bool: the subtask's box is at least `GRASP_LIFT` above its resting height."""
+    return ctx.obj_pos[:, 2] >= ctx.obj_rest_z + GRASP_LIFT
+
+
 def walk_to_box(ctx: SkillContext) -> torch.Tensor:
     """Walk to the box; 1 once the box is lifted or at the destination (each later stage of
     the task pays the earlier stages' terms in full: a box held in front of the pelvis is
     more than `NEAR` away from it)."""
     r = approach(ctx, ctx.obj_pos)
     delivered = (ctx.obj_pos[:, :2] - ctx.target[:, :2]).norm(dim=-1) < NEAR
-    lifted = ctx.obj_pos[:, 2] >= ctx.obj_rest_z + GRASP_LIFT
-    return torch.where(delivered | lifted, torch.ones_like(r), r)
+    return torch.where(delivered | box_lifted(ctx), torch.ones_like(r), r)
 
 
 HAND_IDS = [BODY_NAMES.index(h) for h in HANDS]
@@ -49,8 +53,7 @@ def hands_on_box(ctx: SkillContext) -> torch.Tensor:
     contact); it makes the grasp, which needs both hands on the box, findable by exploration."""
     hands = ctx.state.body_pos[:, HAND_IDS]
     d = point_box_distance(hands, ctx.obj_pos[:, None], ctx.obj_quat[:, None], ctx.obj_half[:, None]).mean(-1)
-    lifted = ctx.obj_pos[:, 2] >= ctx.obj_rest_z + GRASP_LIFT
-    return torch.where(lifted, torch.ones_like(d), torch.exp(-20.0 * d * d))
+    return torch.where(box_lifted(ctx), torch.ones_like(d), torch.exp(-20.0 * d * d))
 
 
 def box_height(ctx: SkillContext) -> torch.Tensor:
@@ -148,8 +151,7 @@ class Carry(Skill):
 
     def update_stats(self, ctx, active, stats) -> None:
         ar = torch.arange(ctx.num_envs, device=self.device)
-        lifted = ctx.obj_pos[:, 2] >= ctx.obj_rest_z + GRASP_LIFT
-        stats["grasped"][ar, ctx.subtask] |= active & lifted
+        stats["grasped"][ar, ctx.subtask] |= active & box_lifted(ctx)
 
     def score(self, done, stats) -> torch.Tensor:
         grasped = stats["grasped"]
