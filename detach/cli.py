@@ -551,7 +551,12 @@ def _resume(args: argparse.Namespace) -> int:
     from detach.runs.job import run_job
     from detach.runs.session import train_and_evaluate
 
+    from detach.runs.provenance import code_change_since
+
     eval_on = [task_path(extra, "--eval-on") for extra in args.eval_on]
+    warning = code_change_since(run)
+    if warning:
+        print(warning, flush=True)
     print(f"resuming {run.path} from {checkpoint.name}")
     return run_job(run, lambda r: train_and_evaluate(
         r, resume=True, eval_tasks=eval_on, trials=args.trials, evaluate=not args.no_eval,

@@ -4,6 +4,9 @@ DETACH's schedule, and a stated schedule must keep every completed iteration's s
 
 from __future__ import annotations
 
+import json
+import re
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -14,6 +17,7 @@ from detach import cli
 from detach.config import resolve
 from detach.config_schema import StagesCfg
 from detach.runs.folder import RunFolder
+from detach.runs.provenance import code_change_since, git_state
 from detach.train.schedule import extend_schedule, stage_at, stage_lengths
 from tests.test_runner_cli import FOLLOW
 
@@ -73,3 +77,45 @@ def test_extending_a_schedule_keeps_the_stage_of_every_earlier_iteration() -> No
         assert sum(k for _n, k in after) == total
         assert all(stage_at(after, i) == stage_at(before, i) for i in range(20))
     assert extend_schedule(before, 5) == [("pretrain", 2), ("fusion", 3)]
+
+
+def _trained_with(run: RunFolder, git: dict | None) -> None:
+    (run.path / "provenance.json").write_text(json.dumps({"runs": [{"resumed": False, "git": git}]}))
+
+
+def test_resuming_under_other_code_says_so(detach_run: RunFolder, monkeypatch: pytest.MonkeyPatch,
+                                           capsys: pytest.CaptureFixture[str]) -> None:
+    """A sweep resumes an interrupted cell by its config digest; the code may have changed since
+    (stop 26: Carry runs interrupted before a reward fix resumed under the fix, unannounced)."""
+    now = git_state()
+    if now is None or not now.get("commit"):
+        pytest.skip("the source tree is not a git work tree")
+    monkeypatch.setattr("detach.runs.session.train_and_evaluate", lambda *_a, **_k: None)
+    _trained_with(detach_run, {**now, "commit": "f" * 40, "diff": ""})
+    assert cli.main(["--resume", str(detach_run.path)]) == 0
+    out = capsys.readouterr().out
+    assert f"last trained with code at commit ffffffffff; it resumes with {now['commit'][:10]}" in out
+    assert "The iterations from here run under the new code." in out
+    _trained_with(detach_run, now)
+    assert cli.main(["--resume", str(detach_run.path)]) == 0
+    assert "warning" not in capsys.readouterr().out
+
+
+def test_the_code_change_warning_names_the_changed_files(detach_run: RunFolder) -> None:
+    now = git_state()
+    if now is None or not now.get("commit"):
+        pytest.skip("the source tree is not a git work tree")
+    first = subprocess.run(["git", "rev-list", "--max-parents=0", "HEAD"], cwd=now["root"],
+                           capture_output=True, text=True).stdout.split()
+    if not first or first[0] == now["commit"]:
+        pytest.skip("a shallow clone: no earlier commit to compare with")
+    _trained_with(detach_run, {**now, "commit": first[0], "diff": ""})
+    warning = code_change_since(detach_run, {**now, "diff": ""})
+    assert warning is not None
+    count = re.search(r"(\d+) code file\(s\) differ: ", warning)
+    assert count is not None and int(count.group(1)) > 10  # the whole package, from the first commit
+    _trained_with(detach_run, None)  # trained outside a git work tree: nothing to compare
+    assert code_change_since(detach_run, now) is None
+    _trained_with(detach_run, {**now, "diff": "+x\n"})
+    warning = code_change_since(detach_run, {**now, "diff": ""})
+    assert warning is not None and f"at commit {now['commit'][:10]} (uncommitted changes); it resumes" in warning

@@ -27,6 +27,8 @@ import detach
 from detach.run_contract import PROVENANCE_FILE
 from detach.runs.folder import RunFolder, atomic_write_json, read_json
 
+CODE_PATHS = ("detach", "scene_builder", "configs", "pyproject.toml")
+"""What decides a run's behaviour besides its config.yaml (docs and results do not)."""
 MAX_DIFF = 500_000
 """Characters of `git diff HEAD` kept (a larger diff is cut and says so)."""
 KEY_PACKAGES = ("detach", "torch", "mujoco", "rsl-rl-lib", "tensordict", "numpy")
@@ -109,3 +111,33 @@ def write_provenance(run: RunFolder, device: str, resumed: bool = False) -> Path
     records.append(provenance_record(device, resumed))
     atomic_write_json(path, {"runs": records})
     return path
+
+
+def code_change_since(run: RunFolder, current: dict[str, Any] | None = None) -> str | None:
+    """A warning when the code about to resume `run` differs from the code that trained its last
+    stretch, else None. A sweep's cell key digests the config, not the code, so a cell
+    interrupted before a reward or physics change resumes under the new code without this.
+    Says nothing when either side is not a git work tree (the versions cannot be compared)."""
+    path = run.path / PROVENANCE_FILE
+    try:
+        records = read_json(path).get("runs", []) if path.exists() else []
+    except (OSError, ValueError, AttributeError):
+        return None
+    before = records[-1].get("git") if records and isinstance(records[-1], dict) else None
+    now = current if current is not None else git_state()
+    if not before or not now or not before.get("commit") or not now.get("commit"):
+        return None
+    same_commit, same_diff = before["commit"] == now["commit"], before.get("diff", "") == now.get("diff", "")
+    if same_commit and same_diff:
+        return None
+    changed = _git(["diff", "--name-only", before["commit"], "--", *CODE_PATHS], Path(now["root"]))
+    if changed is not None and not changed.strip() and not before.get("diff") and not now.get("diff"):
+        return None  # commits differ only outside the code (docs, results)
+    files = sorted(set((changed or "").split())) if changed is not None else []
+    what = (f"{len(files)} code file(s) differ: {', '.join(files[:8])}{' ...' if len(files) > 8 else ''}"
+            if files else "the code cannot be compared file by file" if changed is None
+            else "uncommitted changes differ")
+    return (f"warning: {run.path.name} last trained with code at commit {before['commit'][:10]}"
+            f"{' (uncommitted changes)' if before.get('diff') else ''}; it resumes with "
+            f"{now['commit'][:10]}{' (uncommitted changes)' if now.get('diff') else ''}: {what}. "
+            f"The iterations from here run under the new code.")
