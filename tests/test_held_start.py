@@ -120,3 +120,21 @@ def test_a_grasp_lets_go_only_well_below_zero() -> None:
     a[:, GRASP_ACTION] = -1.0
     env.step(a)
     assert bool((env.character.held_object() == -1).all())
+
+
+def test_training_success_counts_only_episodes_that_started_at_the_start() -> None:
+    """A held start's grasp counts 0.5 from its first step, so its Carry success in the training
+    log said nothing about learning to grasp; such episodes are left out of `Episode_Success/`
+    (their terminations stay in `Episode_Termination/`)."""
+    def logs(prob: float) -> list[dict]:
+        cfg = resolve(CARRY, "mlp", ["env.character=puppet", f"env.mid_task_init_prob={prob}",
+                                     "env.episode_length=5"])
+        env = make_env(cfg, num_envs=8, verbose=False)
+        a = torch.zeros(env.num_envs, env.num_actions)
+        return [extras["log"] for extras in (env.step(a)[3] for _ in range(6)) if "episode_progress" in extras]
+
+    every = logs(1.0)
+    assert every and all("Episode_Termination/fell" in log for log in every)
+    assert not any(k.startswith("Episode_Success/") for log in every for k in log)
+    none = logs(0.0)
+    assert none and all(len(log["Episode_Success/0_carry"]) == 8 for log in none)

@@ -95,6 +95,8 @@ class LHEnv(VecEnv):
         self.resets = ResetSampler(cfg, self.scene, self.model, self.character, self.gen, self.device)
         self.tracker = PlanTracker(self.plan, self.services, self.index, self.resets.rest_z, self.num_envs)
         self.mid_task_skill = self._mid_task_skill(ec.mid_task_init_prob)
+        self.started_mid_task = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
+        """Episodes that started mid-task: their success is not the task's, so not logged."""
         self.mid_task_target = None if self.mid_task_skill is None else torch.tensor(
             self.plan[0].fixed_target, dtype=torch.float32, device=self.device)
         self.rewards = RewardManager(cfg.rewards)
@@ -144,7 +146,8 @@ class LHEnv(VecEnv):
             prog = self.tracker.progress()
             prog.update(ended, length=self.steps.clone())
             extras["episode_progress"] = prog
-            extras["log"].update(self.tracker.episode_log(prog, ids, self.terminations.names))
+            extras["log"].update(self.tracker.episode_log(prog, ids, self.terminations.names,
+                                                          ids[~self.started_mid_task[ids]]))
             self._reset_envs(ids)
         if self.tracker.advanced or len(ids):  # targets changed since the reward: recompute them
             ctx = self.context(self._read() if len(ids) else ctx.state)
@@ -183,9 +186,12 @@ class LHEnv(VecEnv):
         qpos, qvel, root_xy = self.resets.sample(ids)
         self.tracker.draw_objects(ids)
         mid = None
+        self.started_mid_task[ids] = False
         if self.mid_task_skill is not None:
             mid = self.resets.mid_task(ids, self.tracker.objects[ids, 0], self.mid_task_skill, self.mid_task_target,
                                        self.index.obj_half, qpos, qvel, root_xy)
+            if mid is not None:
+                self.started_mid_task[ids[mid[0]]] = True
         self.backend.reset(ids, qpos, qvel)
         self.episode_length_buf[ids] = 0
         self.steps[ids] = 0

@@ -157,12 +157,17 @@ class PlanTracker:
                     lh_success=(scores >= 1.0).all(dim=-1), **{k: v.clone() for k, v in self.stats.items()})
 
     def episode_log(self, prog: dict[str, torch.Tensor], ids: torch.Tensor,
-                    terminations: tuple[str, ...]) -> dict[str, torch.Tensor]:
+                    terminations: tuple[str, ...], success_ids: torch.Tensor | None = None
+                    ) -> dict[str, torch.Tensor]:
         """Values of the finished episodes ids for the training log, named as IsaacLab's envs
-        name theirs for rsl-rl (`Episode_Termination/`, `Episode_Success/`; docs/METRICS.md). The
-        episode length is rsl-rl's own `Train/mean_episode_length`."""
-        log = {"Episode_Success/lh": prog["lh_success"][ids].float()}
-        log.update({f"Episode_Termination/{name}": prog[name][ids].float() for name in terminations})
-        for i, s in enumerate(self.plan):
-            log[f"Episode_Success/{i}_{s.skill}"] = prog["score"][ids, i]
+        name theirs for rsl-rl (`Episode_Termination/`, `Episode_Success/`; docs/METRICS.md).
+        Success is logged for success_ids only (default ids; the env leaves out episodes that
+        started mid-task) and not at all when there are none. The episode length is rsl-rl's
+        own `Train/mean_episode_length`."""
+        log = {f"Episode_Termination/{name}": prog[name][ids].float() for name in terminations}
+        success_ids = ids if success_ids is None else success_ids
+        if len(success_ids):
+            log["Episode_Success/lh"] = prog["lh_success"][success_ids].float()
+            for i, s in enumerate(self.plan):
+                log[f"Episode_Success/{i}_{s.skill}"] = prog["score"][success_ids, i]
         return log
