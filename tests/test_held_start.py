@@ -15,7 +15,7 @@ from detach.torch_math import point_box_distance
 from detach.character.body import START_HEIGHT
 from detach.config import resolve
 from detach.envs.lh_env import make_env
-from detach.skills.carry import LIFT, hands_on_box, walk_to_box
+from detach.skills.carry import LIFT, box_lifted, hands_on_box, walk_to_box
 
 ROOT = Path(__file__).resolve().parents[1]
 CARRY = ROOT / "configs/tasks/carry.yaml"
@@ -138,3 +138,26 @@ def test_training_success_counts_only_episodes_that_started_at_the_start() -> No
     assert not any(k.startswith("Episode_Success/") for log in every for k in log)
     none = logs(0.0)
     assert none and all(len(log["Episode_Success/0_carry"]) == 8 for log in none)
+
+
+def test_carrying_the_box_toward_its_destination_pays_at_any_distance() -> None:
+    """`carry/box_to_target` pays the lifted box's velocity toward the destination (TokenHSI's
+    carry reward): with position kernels alone, a box 5 m from its destination (LH1) earned
+    exp(-12.5) for any motion. A box on the ground earns nothing for moving (no kicking)."""
+    env = _env(1.0, n=32)
+    ctx = env.context()
+    lifted = box_lifted(ctx)
+    toward = ctx.target[:, :2] - ctx.obj_pos[:, :2]
+    far = toward.norm(dim=-1) > 1.0
+    assert bool((lifted & far).any()) and bool((~lifted).any())
+    toward = toward / toward.norm(dim=-1, keepdim=True)
+
+    def paid(v: torch.Tensor) -> torch.Tensor:
+        ctx.obj_lin = torch.cat((v, torch.zeros(len(v), 1)), -1)
+        return env.rewards.compute(ctx)[1]["carry/box_to_target"]
+
+    to, still, away = paid(1.5 * toward), paid(0.0 * toward), paid(-1.5 * toward)
+    sel = lifted & far
+    assert bool((to[sel] > still[sel] + 0.05).all()) and bool((still[sel] > away[sel]).all())
+    sel = ~lifted & far
+    assert torch.allclose(to[sel], still[sel])
