@@ -132,6 +132,11 @@ class EnvCfg:
     subtask's task where its skill offers such states (Carry: at the box with the hands on its
     lid, or the box carried part of the way; TokenHSI's initialisation from its box clips).
     Needs a character that can start holding an object (the puppet)."""
+    subtask_start_prob: float = 0.0
+    """Training only: the share of episodes of a plan of two or more subtasks that start at a
+    later subtask (uniform over those the scripted oracle reached), from the state the oracle
+    was in when that subtask began (`detach.envs.subtask_starts`). Needs a scriptable
+    character (the puppet)."""
     history_self: int = 5
     history_env: int = 5
     amp_obs_steps: int = 10
@@ -397,7 +402,7 @@ VALUE_RANGES: dict[str, Range] = {
     "sim.nconmax": AT_LEAST_1, "sim.njmax": AT_LEAST_1,
     "env.episode_length": AT_LEAST_1, "env.success_threshold": POSITIVE, "env.max_transition_steps": AT_LEAST_1,
     "env.termination_height": AT_LEAST_0, "env.traj_fail_distance": POSITIVE, "env.mixed_init_prob": FRACTION,
-    "env.mid_task_init_prob": FRACTION,
+    "env.mid_task_init_prob": FRACTION, "env.subtask_start_prob": FRACTION,
     "env.history_self": AT_LEAST_1, "env.history_env": AT_LEAST_1, "env.amp_obs_steps": AT_LEAST_1,
     "env.height_map.grid": AT_LEAST_1, "env.height_map.spacing": POSITIVE,
     "env.trajectory.num_samples": AT_LEAST_1, "env.trajectory.sample_dt": POSITIVE,

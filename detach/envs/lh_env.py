@@ -14,7 +14,8 @@ What an evaluator reads: `extras["episode_progress"]` at every step where some e
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -28,6 +29,7 @@ from detach.envs.observations import ObservationBuilder
 from detach.envs.plan_tracker import PlanTracker
 from detach.envs.resets import ReferenceSampler, ResetSampler
 from detach.envs.rewards import RewardManager
+from detach.envs.subtask_starts import RECORD_ENVS, SubtaskStarts, recording_summary, record_subtask_starts
 from detach.envs.terminations import Terminations
 from detach.sim import make_backend, sim_settings
 from detach.sim.raster import Raster
@@ -96,9 +98,11 @@ class LHEnv(VecEnv):
         self.tracker = PlanTracker(self.plan, self.services, self.index, self.resets.rest_z, self.num_envs)
         self.mid_task_skill = self._mid_task_skill(ec.mid_task_init_prob)
         self.started_mid_task = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
-        """Episodes that started mid-task: their success is not the task's, so not logged."""
+        """Episodes that started mid-task or at a later subtask: their success is not the task's,
+        so not logged."""
         self.mid_task_target = None if self.mid_task_skill is None else torch.tensor(
             self.plan[0].fixed_target, dtype=torch.float32, device=self.device)
+        self.subtask_starts = self._record_subtask_starts(ec.subtask_start_prob, assets, assets_root, verbose)
         self.rewards = RewardManager(cfg.rewards)
         self.terminations = Terminations(ec, self.tracker.skills)
         self.observations = ObservationBuilder(ec, self.num_envs, len(skill_names()), self.num_actions, raster,
@@ -182,6 +186,42 @@ class LHEnv(VecEnv):
         skill = next(s for s in self.tracker.skills.values() if s.name == first.skill)
         return skill if first.fixed_target is not None and (first.obj >= 0 or first.choices) else None
 
+    def _record_subtask_starts(self, prob: float, assets, assets_root, verbose: bool) -> SubtaskStarts | None:
+        if prob <= 0 or self.eval_mode:
+            return None
+        if len(self.plan) < 2:
+            raise ValueError(f"env.subtask_start_prob: {prob} starts episodes at later subtasks, but task "
+                             f"'{self.cfg.task.name}' has one subtask")
+        if not self.character.scriptable:
+            raise ValueError(f"env.subtask_start_prob: {prob} needs the scripted oracle, which cannot drive "
+                             f"character '{self.character.name}'; use env.character=puppet or 0")
+        env = self.cfg.env
+        quiet = replace(self.cfg, env=replace(env, subtask_start_prob=0.0, mid_task_init_prob=0.0))
+        t0 = time.perf_counter()
+        starts = record_subtask_starts(LHEnv(quiet, num_envs=RECORD_ENVS, device=self.device, assets=assets,
+                                             assets_root=assets_root, verbose=False, seed=int(self.cfg.seed) + 1))
+        if verbose or len(starts) == 0:
+            print(recording_summary(starts, len(self.plan), time.perf_counter() - t0)
+                  + ("; no episode starts at a later subtask" if len(starts) == 0 else ""), flush=True)
+        return starts if len(starts) else None
+
+    def _start_at_later_subtasks(self, ids: torch.Tensor, qpos: torch.Tensor, qvel: torch.Tensor,
+                                 root_xy: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """Turn a share `env.subtask_start_prob` of the starts of envs ids that did not start
+        mid-task into recorded subtask starts (qpos, qvel, root_xy changed in place). Returns
+        (rows of ids, recorded state of each) or None."""
+        draw = torch.rand(len(ids), generator=self.gen, device=self.gen.device).to(self.device)
+        rows = ((draw < self.cfg.env.subtask_start_prob) & ~self.started_mid_task[ids]).nonzero(
+            as_tuple=False).squeeze(-1)
+        if len(rows) == 0:
+            return None
+        starts = self.subtask_starts
+        pick = starts.draw(len(rows), self.gen)
+        qpos[rows], qvel[rows], root_xy[rows] = starts.qpos[pick], starts.qvel[pick], starts.root_pos[pick, :2]
+        self.tracker.objects[ids[rows]] = starts.objects[pick]
+        self.started_mid_task[ids[rows]] = True
+        return rows, pick
+
     def _reset_envs(self, ids: torch.Tensor) -> None:
         qpos, qvel, root_xy = self.resets.sample(ids)
         self.tracker.draw_objects(ids)
@@ -192,6 +232,7 @@ class LHEnv(VecEnv):
                                        self.index.obj_half, qpos, qvel, root_xy)
             if mid is not None:
                 self.started_mid_task[ids[mid[0]]] = True
+        late = None if self.subtask_starts is None else self._start_at_later_subtasks(ids, qpos, qvel, root_xy)
         self.backend.reset(ids, qpos, qvel)
         self.episode_length_buf[ids] = 0
         self.steps[ids] = 0
@@ -202,7 +243,16 @@ class LHEnv(VecEnv):
             root = torch.cat((start.root_xy, start.height[:, None]), -1)[h]
             self.character.hold(ids[rows[h]], self.dyn_slot[obj[h]], root, quat_from_yaw(start.yaw[h]),
                                 start.obj_pos[h], start.obj_quat[h])
+        if late is not None:
+            rows, pick = late
+            st, h = self.subtask_starts, self.subtask_starts.held[pick] >= 0
+            if bool(h.any()):
+                p = pick[h]
+                self.character.hold(ids[rows[h]], st.held[p], st.root_pos[p], st.root_quat[p], st.held_pos[p],
+                                    st.held_quat[p])
         self.tracker.reset(ids, self.steps, root_xy)
+        if late is not None:
+            self.tracker.begin_at(ids[rows], self.subtask_starts.subtask[pick], self.steps, root_xy[rows])
 
     def reset(self, ids: torch.Tensor | None = None) -> TensorDict:
         """Start new episodes in envs ids (all by default); returns the observations."""

@@ -138,6 +138,13 @@ class PlanTracker:
             v[ids] = 0
         self.start(ids, steps, root_xy)
 
+    def begin_at(self, ids: torch.Tensor, sub: torch.Tensor, steps: torch.Tensor, root_xy: torch.Tensor) -> None:
+        """Envs ids (just reset) begin at subtask sub [n] >= 1 instead of 0, the earlier
+        subtasks counted as done (`env.subtask_start_prob`)."""
+        self.subtask[ids] = sub
+        self.done[ids] = torch.arange(self.num_subtasks, device=sub.device)[None, :] < sub[:, None]
+        self.start(ids, steps, root_xy)
+
     # ------------------------------------------------------------------ results
     def scores(self) -> torch.Tensor:
         """[N, S] success score of every subtask (0 for those not reached)."""

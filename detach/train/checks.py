@@ -32,6 +32,10 @@ def complete_run_config(cfg: RunConfig) -> RunConfig:
     if cfg.env.mid_task_init_prob > 0 and not character.can_hold:
         raise origin.error(("env", "mid_task_init_prob"), f"starts episodes holding an object, which character "
                            f"'{cfg.env.character}' cannot (a puppet can); set it to 0 or use env.character=puppet")
+    if cfg.env.subtask_start_prob > 0 and not character.scriptable:
+        raise origin.error(("env", "subtask_start_prob"), f"starts episodes from states the scripted oracle "
+                           f"recorded, and the oracle cannot drive character '{cfg.env.character}' (a puppet "
+                           f"can); set it to 0 or use env.character=puppet")
     try:
         check_backend(cfg.sim.backend)
         check_sim(cfg.sim, cfg.device)
@@ -40,9 +44,12 @@ def complete_run_config(cfg: RunConfig) -> RunConfig:
     except ValueError as exc:
         raise origin.error(("sim", "backend"), str(exc)) from None
     try:
-        compile_plan(cfg.task)
+        plan = compile_plan(cfg.task)
     except PlanError as exc:
         raise origin.error(exc.key, str(exc)) from None
+    if cfg.env.subtask_start_prob > 0 and len(plan) < 2:
+        raise origin.error(("env", "subtask_start_prob"), f"starts episodes at later subtasks, but task "
+                           f"'{cfg.task.name}' has one subtask; set it to 0")
     try:
         RewardManager(cfg.rewards)
     except ValueError as exc:

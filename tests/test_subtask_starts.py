@@ -1,0 +1,83 @@
+"""`env.subtask_start_prob`: training episodes of a long plan that begin at a later subtask,
+from states the scripted oracle recorded (detach.envs.subtask_starts). Without them, Climb and
+Sit inside LH1 get no samples until Follow and Carry are mastered."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+
+from detach import cli
+from detach.config import resolve
+from detach.envs.lh_env import make_env
+
+ROOT = Path(__file__).resolve().parents[1]
+LH1 = ROOT / "configs/tasks/lh1.yaml"
+
+
+def _env(prob: float, n: int = 8, eval_mode: bool = False):
+    cfg = resolve(LH1, "mlp", ["env.character=puppet", f"env.subtask_start_prob={prob}"])
+    return make_env(cfg, num_envs=n, verbose=False, eval_mode=eval_mode)
+
+
+@pytest.fixture(scope="module")
+def late_env():
+    """One env for the module: recording the oracle's LH1 episodes takes tens of seconds."""
+    return _env(1.0, n=16)
+
+
+def test_episodes_begin_at_later_subtasks_in_the_oracles_state(late_env) -> None:
+    env = late_env
+    starts = env.subtask_starts
+    assert starts is not None and set(starts.subtask.tolist()) == {1, 2, 3}  # LH1: follow, carry, climb, sit
+    sub = env.tracker.subtask
+    assert bool((sub >= 1).all()) and len(set(sub.tolist())) >= 2
+    ar = torch.arange(env.tracker.num_subtasks)
+    assert torch.equal(env.tracker.done, ar[None, :] < sub[:, None])  # the earlier subtasks count as done
+    # an episode that begins at climb (after carry) finds the box at its destination
+    ctx = env.context()
+    after_carry = sub == 2
+    box = env.plan[1].obj
+    target = torch.tensor(env.plan[1].fixed_target)
+    if bool(after_carry.any()):
+        d = (env.state.obj_pos[after_carry, box] - target).norm(dim=-1)
+        assert bool((d <= env.cfg.env.success_threshold + 0.05).all())
+    a = torch.zeros(env.num_envs, env.num_actions)
+    for _ in range(5):
+        obs = env.step(a)[0]
+    assert all(bool(torch.isfinite(v).all()) for v in obs.values())
+    assert bool(torch.isfinite(ctx.dist).all())
+
+
+def test_evaluation_and_the_default_begin_at_the_first_subtask() -> None:
+    assert _env(1.0, eval_mode=True).subtask_starts is None
+    env = _env(0.0)
+    assert env.subtask_starts is None and bool((env.tracker.subtask == 0).all())
+
+
+def test_training_success_leaves_out_episodes_that_began_later(late_env) -> None:
+    env = late_env
+    env.max_episode_length = 10  # time every episode out soon (the recording needed the full length)
+    a = torch.zeros(env.num_envs, env.num_actions)
+    logs = []
+    for _ in range(25):
+        extras = env.step(a)[3]
+        if "episode_progress" in extras:
+            logs.append(extras["log"])
+    assert bool(env.started_mid_task.all())  # every reset began later again
+    assert logs and not any(k.startswith("Episode_Success/") for log in logs for k in log)
+
+
+@pytest.mark.parametrize("task, overrides, why", [
+    ("lh1", ["env.character=humanoid"], "cannot drive character 'humanoid'"),
+    ("carry", ["env.character=puppet"], "has one subtask"),
+])
+def test_a_start_the_oracle_cannot_make_is_a_config_error(tmp_path: Path, capsys: pytest.CaptureFixture,
+                                                          task: str, overrides: list[str], why: str) -> None:
+    rc = cli.main(["train", task, "--model", "mlp", "--runs", str(tmp_path), "--no-eval",
+                   "env.subtask_start_prob=0.5", "train.max_iterations=1", *overrides])
+    err = capsys.readouterr().err
+    assert rc == 2 and "env.subtask_start_prob" in err and why in err
+    assert not any(tmp_path.iterdir())
