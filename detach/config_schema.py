@@ -307,13 +307,15 @@ class TrainCfg:
     schedule holds it) the std parameter moves by ~1e-5 per step, so a stage keeps its source's
     exploration noise for good: the puppet's 1.0 (2 m/s of root speed per unit) made every
     Carry policy drop a held box within a few steps."""
-    init_normalizers: Literal["restart", "keep"] = "restart"
-    """With `init_from`: `restart` (default) starts the policy's and critic's observation
-    statistics afresh on this run's task (the first rollout sets them); `keep` continues the
-    source's. Kept statistics break a later stage of the protocol: an input the source task
-    never varied (Carry's box, Follow's empty height map) has variance 0 there and would be
-    scaled by rsl-rl's 1/eps = 100 for hundreds of iterations (the source's sample count
-    outweighs the new task's)."""
+    init_normalizers: Literal["merge", "restart", "keep"] = "merge"
+    """With `init_from`: `merge` (default) keeps the source's observation statistics for the
+    inputs it saw vary and takes this run's task's (from its first update) for those it never
+    saw vary; `restart` starts them all afresh on this task (the first rollout sets them);
+    `keep` continues the source's. Kept statistics break a later stage of the protocol: an
+    input the source task never varied (Carry's box, Follow's empty height map) has variance 0
+    there and would be scaled by rsl-rl's 1/eps = 100 for hundreds of iterations (the source's
+    sample count outweighs the new task's). Restarted ones change what the source policy does
+    with the inputs it learned from."""
     init_at_random_ep_len: bool = True
     """Start training with each environment at a random step of its first episode (rsl-rl's
     `init_at_random_ep_len`, as IsaacLab and legged_gym train), so that episodes end at

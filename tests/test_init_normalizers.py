@@ -62,11 +62,11 @@ def test_restarted_statistics_take_the_new_task_whole_on_the_first_update(follow
 
 
 def test_a_carry_stage_started_from_follow_trains_on_its_own_statistics(follow_run: Path, tmp_path: Path) -> None:
-    """Through the CLI: the Carry run's checkpoint holds statistics of Carry samples alone."""
+    """Through the CLI (`restart`): the Carry run's checkpoint holds statistics of Carry samples alone."""
     out = tmp_path / "runs"
     assert cli.main(["train", str(ROOT / "configs/tasks/carry.yaml"), "--model", "mlp", "--runs", str(out),
                      *TINY, "train.max_iterations=1", "train.save_interval=1",
-                     f"train.init_from={follow_run}"]) == 0
+                     f"train.init_from={follow_run}", "train.init_normalizers=restart"]) == 0
     (run,) = find_runs(out)
     state = torch.load(sorted(run.checkpoints.glob("model_*.pt"))[-1], weights_only=True)
     source = torch.load(sorted((follow_run / "checkpoints").glob("model_*.pt"))[-1], weights_only=True)
@@ -115,3 +115,32 @@ def test_a_later_stage_can_start_with_a_smaller_action_std(follow_run: Path, tmp
                      str(tmp_path / "runs"), *TINY, "train.init_action_std=0.3"]) == 2
     assert "train.init_action_std" in capsys.readouterr().err
     assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())
+
+
+def test_merged_statistics_keep_what_the_policy_learned_from_and_take_the_rest_from_the_new_task(
+        follow_run: Path) -> None:
+    """The default. Restarted statistics changed what the Follow policy did with inputs it had
+    learned from (after one Carry rollout it no longer walked to the box); kept ones blew up the
+    inputs Follow never varied. Merged: the seen inputs keep Follow's statistics, the unseen
+    ones read ~0 (the constant the policy knew) until the first update sets them from Carry."""
+    source = torch.load(sorted((follow_run / "checkpoints").glob("model_*.pt"))[-1], weights_only=True)
+    saved = source["actor_state_dict"]
+    unseen = (saved["obs_normalizer._var"] <= 1e-12).reshape(-1)
+    assert 0 < int(unseen.sum()) < unseen.numel()
+    z, actor = _carry_inputs_after_init(follow_run, "mlp", "merge")
+    norm = actor.obs_normalizer
+    assert int(norm.count) == int(saved["obs_normalizer.count"])
+    assert float(z[..., unseen].max()) < 1e-3
+    torch.testing.assert_close(norm._mean, saved["obs_normalizer._mean"])
+    torch.testing.assert_close(norm._std[..., ~unseen], saved["obs_normalizer._std"][..., ~unseen])
+    batch = torch.randn(64, norm._mean.shape[-1]) * 3.0 + 2.0
+    norm.train()
+    norm.update(batch)
+    torch.testing.assert_close(norm._mean[0, unseen], batch.mean(0)[unseen])
+    torch.testing.assert_close(norm._var[0, unseen], batch.var(0, unbiased=False)[unseen])
+    rate = 64 / (int(saved["obs_normalizer.count"]) + 64)  # rsl-rl's update for the seen inputs
+    expected = saved["obs_normalizer._mean"][0, ~unseen] * (1 - rate) + batch.mean(0)[~unseen] * rate
+    torch.testing.assert_close(norm._mean[0, ~unseen], expected)
+    before = norm._mean.clone()
+    norm.update(batch * 0.0)  # later updates are rsl-rl's own, for every input
+    assert bool((norm._mean[0, unseen] != before[0, unseen]).any())

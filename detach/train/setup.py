@@ -217,6 +217,8 @@ def load_initial_weights(runner: DetachRunner, cfg: RunConfig) -> str:
     restarted = ""
     if cfg.train.init_normalizers == "restart":
         restarted = f", {restart_normalizers(alg.actor, alg.critic)} observation normalisers restarted"
+    elif cfg.train.init_normalizers == "merge":
+        restarted = f", {merge_normalizers(alg.actor, alg.critic)} observation normalisers merged"
     if cfg.train.init_action_std is not None:
         restarted += f", action std {set_action_std(alg.actor, cfg.train.init_action_std):.2f} -> " \
                      f"{cfg.train.init_action_std:g}"
@@ -241,6 +243,56 @@ def set_action_std(actor: torch.nn.Module, std: float) -> float:
     return before
 
 
+UNSEEN_VAR = 1e-12
+"""An input whose variance in the source run's statistics is at most this never varied there."""
+
+
+def merge_normalizers(*modules: torch.nn.Module) -> int:
+    """Keep the source's observation statistics for the inputs it saw vary and take this run's
+    task's for the inputs it never saw vary (`train.init_normalizers: merge`); returns how many
+    normalisers changed.
+
+    Why not restart them all: the policy is a function of the normalised inputs, so new
+    statistics for the inputs it has learned from change what it does with them (a Carry
+    policy started from Follow, an LH1 policy from Carry). Kept as they are, the inputs the
+    source never varied (Follow's box, its empty height map) are divided by rsl-rl's eps
+    (`restart_normalizers`).
+
+    Until this run's first update an unseen input normalises to ~0 (its std held at 1e6), the
+    value the policy saw in the source; the first update sets its mean and variance to that
+    batch's, and later updates weigh it like every other input (by the kept sample count).
+    Frozen normalisers of a frozen pre-trained policy are treated as in `restart_normalizers`.
+    """
+    count = 0
+    for module in modules:
+        frozen_base = bool(getattr(module, "new_parameter_prefixes", lambda: ())())
+        for name, sub in module.named_modules():
+            if not isinstance(sub, EmpiricalNormalization):
+                continue
+            unseen = (sub._var <= UNSEEN_VAR).reshape(-1)
+            sub._std[..., unseen] = 1e6
+            if not (frozen_base and name == "obs_normalizer"):
+                _take_unseen_from_first_update(sub, unseen)
+            count += 1
+    return count
+
+
+def _take_unseen_from_first_update(norm: EmpiricalNormalization, unseen: torch.Tensor) -> None:
+    """On `norm`'s next update, set the unseen inputs' statistics to that batch's (once)."""
+    def update(x: torch.Tensor) -> None:
+        if not norm.training:
+            return
+        mean, var = x.mean(dim=0), x.var(dim=0, unbiased=False)
+        del norm.update  # back to rsl-rl's update for every later call
+        norm.update(x)
+        with torch.no_grad():
+            norm._mean[..., unseen] = mean[unseen]
+            norm._var[..., unseen] = var[unseen]
+            norm._std[..., unseen] = var[unseen].sqrt()
+
+    norm.update = update
+
+
 def restart_normalizers(*modules: torch.nn.Module) -> int:
     """Restart the observation statistics of `modules` on this run's task (`train.init_normalizers`
     says why); returns how many normalisers changed.
@@ -258,7 +310,7 @@ def restart_normalizers(*modules: torch.nn.Module) -> int:
             if not isinstance(sub, EmpiricalNormalization):
                 continue
             if frozen_base and name == "obs_normalizer":
-                unseen = sub._var <= 1e-12
+                unseen = sub._var <= UNSEEN_VAR
                 sub._std[unseen] = 1e6
             else:
                 sub._mean.zero_()

@@ -35,5 +35,5 @@ for name in sys.argv[2:]:
                                        ctx.obj_half[:, None]).mean(-1)
                 rows.append((t + 1, d.median().item(), (d < 0.6).float().mean().item(), h.median().item(),
                              (a[:, -1] > 0).float().mean().item(), a[:, 32].mean().item()))
-    print(path.name, " ".join(f"t{t}: box {dm:.2f}m near {nf:.2f} hands {hm:.2f} grasp>0 {g:.2f} fwd {f:+.2f}"
+    print(Path(name).name, " ".join(f"t{t}: box {dm:.2f}m near {nf:.2f} hands {hm:.2f} grasp>0 {g:.2f} fwd {f:+.2f}"
                               for t, dm, nf, hm, g, f in rows[::2]))
