@@ -8,9 +8,9 @@ DETACH's stage hooks and auxiliary losses. The run folder around it is `detach.r
 from __future__ import annotations
 
 import math
-
 import random
 from pathlib import Path
+from typing import Iterator, Sequence
 
 import numpy as np
 import torch
@@ -264,17 +264,31 @@ def merge_normalizers(*modules: torch.nn.Module) -> int:
     Frozen normalisers of a frozen pre-trained policy are treated as in `restart_normalizers`.
     """
     count = 0
+    for norm, frozen in _normalizers(modules):
+        unseen = _hold_unseen(norm)
+        if not frozen:
+            _take_unseen_from_first_update(norm, unseen)
+        count += 1
+    return count
+
+
+def _normalizers(modules: Sequence[torch.nn.Module]) -> Iterator[tuple[EmpiricalNormalization, bool]]:
+    """Every observation normaliser of `modules`, and whether it is the input normaliser of a
+    frozen pre-trained policy (`new_parameter_prefixes()` non-empty: TokenHSI's adapters, CML's
+    cooperative policy), which is never updated."""
     for module in modules:
         frozen_base = bool(getattr(module, "new_parameter_prefixes", lambda: ())())
         for name, sub in module.named_modules():
-            if not isinstance(sub, EmpiricalNormalization):
-                continue
-            unseen = (sub._var <= UNSEEN_VAR).reshape(-1)
-            sub._std[..., unseen] = 1e6
-            if not (frozen_base and name == "obs_normalizer"):
-                _take_unseen_from_first_update(sub, unseen)
-            count += 1
-    return count
+            if isinstance(sub, EmpiricalNormalization):
+                yield sub, frozen_base and name == "obs_normalizer"
+
+
+def _hold_unseen(norm: EmpiricalNormalization) -> torch.Tensor:
+    """Make the inputs the source never saw vary normalise to ~0 (std 1e6), the value it saw
+    them at; returns their mask [D]."""
+    unseen = (norm._var <= UNSEEN_VAR).reshape(-1)
+    norm._std[..., unseen] = 1e6
+    return unseen
 
 
 def _take_unseen_from_first_update(norm: EmpiricalNormalization, unseen: torch.Tensor) -> None:
@@ -304,18 +318,13 @@ def restart_normalizers(*modules: torch.nn.Module) -> int:
     the value it saw (its std set to 1e6, so it normalises to ~0), as the frozen network knew it.
     """
     count = 0
-    for module in modules:
-        frozen_base = bool(getattr(module, "new_parameter_prefixes", lambda: ())())
-        for name, sub in module.named_modules():
-            if not isinstance(sub, EmpiricalNormalization):
-                continue
-            if frozen_base and name == "obs_normalizer":
-                unseen = sub._var <= UNSEEN_VAR
-                sub._std[unseen] = 1e6
-            else:
-                sub._mean.zero_()
-                sub._var.fill_(1.0)
-                sub._std.fill_(1.0)
-                sub.count.zero_()
-            count += 1
+    for norm, frozen in _normalizers(modules):
+        if frozen:
+            _hold_unseen(norm)
+        else:
+            norm._mean.zero_()
+            norm._var.fill_(1.0)
+            norm._std.fill_(1.0)
+            norm.count.zero_()
+        count += 1
     return count
