@@ -25,11 +25,11 @@ Grasp rule: with the grasp action > 0, a dynamic object is attached to the pelvi
 equality (keeping the relative pose it has at that instant) when both hands are within
 `GRASP_HAND_DIST` metres of the object's bounding box (distance to the box surface in its
 own frame; 0 inside). It stays attached until the grasp action drops below `RELEASE_BELOW`
-(-0.9; actions are clipped to [-1, 1]): the gap between taking hold (> 0) and letting go keeps a grasp whose mean is above 0
-from being dropped by exploration noise. With a release at 0, a mean of 0.45 and std 0.3 let go
-at 7% of the steps; with a release at -0.5, the mean of about 0.1 that Carry training starts
-from let go at 2.3% (held boxes fell within 1.4 s on average); at -0.9 it is 0.04%. Letting
-go is a deliberate action. One object at a time.
+(-0.9; actions are clipped to [-1, 1]): the gap between taking hold (> 0) and letting go keeps
+a grasp whose mean is above 0 from being dropped by exploration noise. With a release at 0, a
+mean of 0.45 and std 0.3 let go at 7% of the steps; with a release at -0.5, the mean of about
+0.1 that Carry training starts from let go at 2.3% (held boxes fell within 1.4 s on average);
+at -0.9 it is 0.04%. Letting go is a deliberate action. One object at a time.
 """
 
 from __future__ import annotations
