@@ -98,20 +98,55 @@ def heading_matrix(yaw: torch.Tensor) -> torch.Tensor:
     return torch.stack((c, -s, z, s, c, z, z, z, o), dim=-1).reshape(*yaw.shape, 3, 3)
 
 
+def _rotation_table() -> torch.Tensor:
+    """[16, 9]: the entries of R (row-major) as linear combinations of the products q_i q_j of a
+    unit wxyz quaternion (index 4 i + j), e.g. R00 = ww + xx - yy - zz."""
+    w, x, y, z = range(4)
+    rows = (((w, w, 1), (x, x, 1), (y, y, -1), (z, z, -1)),  # R00
+            ((x, y, 2), (w, z, -2)), ((x, z, 2), (w, y, 2)),  # R01, R02
+            ((x, y, 2), (w, z, 2)),  # R10
+            ((w, w, 1), (x, x, -1), (y, y, 1), (z, z, -1)),  # R11
+            ((y, z, 2), (w, x, -2)), ((x, z, 2), (w, y, -2)), ((y, z, 2), (w, x, 2)),  # R12, R20, R21
+            ((w, w, 1), (x, x, -1), (y, y, -1), (z, z, 1)))  # R22
+    table = torch.zeros(16, 9)
+    for col, terms in enumerate(rows):
+        for i, j, c in terms:
+            table[4 * i + j, col] += c / 2 if i != j else c  # q_i q_j and q_j q_i share the weight
+            if i != j:
+                table[4 * j + i, col] += c / 2
+    return table
+
+
+_ROTATION = _rotation_table()
+_AXES_XZ = _ROTATION[:, [0, 3, 6, 2, 5, 8]]  # columns 0 and 2 of R: the rotated +X and +Z
+_CONSTANTS: dict[tuple[int, torch.device, torch.dtype], torch.Tensor] = {}
+
+
+def _constant(table: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
+    """`table` on `like`'s device and dtype, copied once per device and dtype."""
+    key = (id(table), like.device, like.dtype)
+    out = _CONSTANTS.get(key)
+    if out is None:
+        out = _CONSTANTS[key] = table.to(like.device, like.dtype)
+    return out
+
+
+def _from_products(q: torch.Tensor, table: torch.Tensor) -> torch.Tensor:
+    """Linear functions of the products q_i q_j [..., 16] of quaternions q [..., 4]: one outer
+    product and one matrix product with a constant instead of ~28 small element-wise ops
+    (the env step calls these for 15 bodies and every object; benchmarks/RESULTS.md)."""
+    products = (q[..., :, None] * q[..., None, :]).flatten(-2)
+    return products @ _constant(table, q)
+
+
 def quat_axes_xz(q: torch.Tensor) -> torch.Tensor:
-    """The rotated +X and +Z axes [..., 6] of wxyz quaternions (= `quat_to_tan_norm`), closed form."""
-    w, x, y, z = q.unbind(-1)
-    return torch.stack((1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y),
-                        2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)), dim=-1)
+    """The rotated +X and +Z axes [..., 6] of unit wxyz quaternions (= `quat_to_tan_norm`)."""
+    return _from_products(q, _AXES_XZ)
 
 
 def quat_to_matrix(q: torch.Tensor) -> torch.Tensor:
-    """[..., 3, 3] rotation matrices of wxyz quaternions (columns = rotated axes)."""
-    w, x, y, z = q.unbind(-1)
-    m = torch.stack((1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-                     2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-                     2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)), dim=-1)
-    return m.reshape(*q.shape[:-1], 3, 3)
+    """[..., 3, 3] rotation matrices of unit wxyz quaternions (columns = rotated axes)."""
+    return _from_products(q, _ROTATION).reshape(*q.shape[:-1], 3, 3)
 
 
 _CORNER_SIGNS = torch.tensor([[sx, sy, sz] for sx in (-1.0, 1.0) for sy in (-1.0, 1.0) for sz in (-1.0, 1.0)])
@@ -119,7 +154,7 @@ _CORNER_SIGNS = torch.tensor([[sx, sy, sz] for sx in (-1.0, 1.0) for sy in (-1.0
 
 def box_corners_fast(pos: torch.Tensor, quat: torch.Tensor, half: torch.Tensor) -> torch.Tensor:
     """As `box_corners` for [N, 3] boxes ([N, 8, 3]), with one batched matrix product."""
-    local = _CORNER_SIGNS.to(pos.device) * half[:, None, :]
+    local = _constant(_CORNER_SIGNS, pos) * half[:, None, :]
     return pos[:, None, :] + local @ quat_to_matrix(quat).transpose(-1, -2)
 
 

@@ -9,7 +9,8 @@ import torch
 from detach.config_schema import TrajectoryGenCfg
 from detach.envs import observations as O
 from detach.torch_math import (
-    heading_matrix, quat_from_yaw, quat_mul, quat_rotate, quat_to_tan_norm, rotate_yaw_inverse, yaw_of,
+    heading_matrix, quat_axes_xz, quat_from_yaw, quat_mul, quat_rotate, quat_to_matrix, quat_to_tan_norm,
+    rotate_yaw_inverse, yaw_of,
 )
 from detach.skills.trajectories import distance_to_polyline, random_trajectories, sample_at, time_polyline
 
@@ -107,3 +108,19 @@ def test_timed_polyline_sampling_and_distance():
     assert torch.allclose(sample_at(verts, dt, torch.tensor([60.0])), torch.tensor([[3.0, 4.0]]))
     d = distance_to_polyline(torch.tensor([[1.5, 0.5], [4.0, 2.0]]), verts.expand(2, -1, -1))
     assert torch.allclose(d, torch.tensor([0.5, 1.0]), atol=1e-5)
+
+
+def test_rotation_matrices_from_quaternion_products_rotate_like_quat_rotate():
+    """`quat_to_matrix` and `quat_axes_xz` are one outer product and one constant matrix
+    product (~28 element-wise ops each before, benchmarks/RESULTS.md); the matrices must be
+    the rotations `quat_rotate` applies, in float32 and float64."""
+    gen = torch.Generator().manual_seed(3)
+    for dtype, tol in ((torch.float32, 1e-6), (torch.float64, 1e-12)):
+        q = _unit_quats(64, gen).to(dtype).reshape(4, 16, 4)
+        q = q / q.norm(dim=-1, keepdim=True)  # unit in this dtype
+        R = quat_to_matrix(q)
+        v = torch.randn(4, 16, 3, generator=gen).to(dtype)
+        torch.testing.assert_close((R @ v[..., None])[..., 0], quat_rotate(q, v), atol=tol, rtol=0)
+        torch.testing.assert_close(R @ R.transpose(-1, -2), torch.eye(3, dtype=dtype).expand(4, 16, 3, 3),
+                                   atol=tol, rtol=0)
+        torch.testing.assert_close(quat_axes_xz(q), torch.cat((R[..., :, 0], R[..., :, 2]), -1), atol=tol, rtol=0)

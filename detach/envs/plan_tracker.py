@@ -47,6 +47,7 @@ class PlanTracker:
         self.objects = self.tensors.obj.expand(n, s).clone()
         """[N, S] each env's object of every subtask (drawn at reset where the plan gives choices)."""
         self.choices = {i: torch.tensor(sub.choices, device=d) for i, sub in enumerate(plan) if sub.choices}
+        self._now_and_next = torch.tensor([0.0, services.dt], device=d)
 
     # ------------------------------------------------------------------ per step
     def context(self, st: SimState, steps: torch.Tensor, held: torch.Tensor, joint_power_weight: float
@@ -63,9 +64,9 @@ class PlanTracker:
         else:
             opos = olin = half = torch.zeros(n, 3, device=dev)
             oquat = torch.tensor([1.0, 0, 0, 0], device=dev).expand(n, 4)
-        traj = self.services.trajectory
-        ref = traj.reference(steps, 0.0)
         dt = self.services.dt
+        now_and_next = self.services.trajectory.reference(steps, self._now_and_next)  # one sample, not two
+        ref = now_and_next[:, 0]
         dyn = self.index.dyn
         ctx = SkillContext(
             services=self.services, state=st, skill=plan.skill[sub], subtask=sub, obj=obj, obj_pos=opos,
@@ -73,7 +74,7 @@ class PlanTracker:
             fixed_target=plan.fixed_target[sub], has_fixed=plan.has_fixed[sub], held=held, steps=steps,
             joint_power=st.joint_power * joint_power_weight,
             dyn_speed=st.obj_lin[:, dyn].norm(dim=-1) if len(dyn) else torch.zeros(n, 0, device=dev),
-            ref_xy=ref, ref_vel=(traj.reference(steps, dt) - ref) / dt)
+            ref_xy=ref, ref_vel=(now_and_next[:, 1] - ref) / dt)
         target = torch.zeros(n, 3, device=dev)
         for i, skill in self.skills.items():
             target = torch.where((ctx.skill == i)[:, None], skill.target(ctx), target)
