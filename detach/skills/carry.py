@@ -9,6 +9,8 @@ hold it up, bring it to the destination (position and velocity toward it, as Tok
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from detach.character.body import BODY_NAMES, HANDS, START_HEIGHT
@@ -25,9 +27,21 @@ LIFT = 0.2
 """How far (m) the oracle raises a grasped box."""
 HELD_YAW_NOISE = 0.5
 """A held start faces the destination within +- this (rad)."""
-PICK_UP_SHARE = 0.25
-"""Share of the mid-task starts at the box, hands on its lid, not yet grasped (TokenHSI's
-pick-up clips are a quarter of its clips that start with a box: pick up 0.1, carry 0.3)."""
+APPROACH_SHARE = 0.4
+"""Share of the mid-task starts standing (in the default start's pose) `APPROACH_RANGE` from the
+box, on the destination's side of it, not facing it exactly (`APPROACH_YAW_NOISE`)."""
+APPROACH_RANGE = (0.8, 2.5)
+"""Distance (m) of an approach start's pelvis from the box's centre, uniform, at most the
+box's distance from its destination."""
+APPROACH_SPREAD = math.pi / 4
+"""An approach start stands within +- this (rad) of the line from the box to its destination:
+on the nine-box ring, further round would stand in the neighbouring box."""
+APPROACH_YAW_NOISE = math.pi / 2
+"""An approach start faces the box within +- this (rad)."""
+PICK_UP_SHARE = 0.15
+"""Share of the mid-task starts at the box, hands on its lid, not yet grasped. The rest
+(0.45) start holding it. TokenHSI's box clips start 1 in 4 at the pick-up (pick up 0.1,
+carry 0.3); ours give the pick-up and the approach together the larger share."""
 
 
 def box_lifted(ctx: SkillContext) -> torch.Tensor:
@@ -129,32 +143,50 @@ class Carry(Skill):
         return (ctx.obj_pos - ctx.target).norm(dim=-1)
 
     def mid_task_start(self, obj_rest, obj_half, target, gen) -> MidTaskStart:
-        """Either (`PICK_UP_SHARE`) at the box, in the oracle's reach pose with the hands on its
-        resting lid, not yet holding it; or the box carried part of the way: lifted `LIFT`,
-        held in the reach pose at a uniform point of the way from its resting place to the
-        destination. The character faces the destination with its pelvis at the standing
-        height (where it stands on its legs whatever lower height it asks for).
+        """One of three starts, drawn per episode: (`APPROACH_SHARE`) standing some way from the
+        box, turned partly away from it; (`PICK_UP_SHARE`) at the box, in the oracle's reach
+        pose with the hands on its resting lid, not yet holding it; or (the rest) the box
+        carried part of the way: lifted `LIFT`, held in the reach pose at a uniform point of
+        the way from its resting place to the destination, facing the destination. The pelvis
+        is at the standing height (where it stands on its legs whatever lower height it asks for).
 
         TokenHSI starts a quarter of its Carry episodes from reference clips of picking up,
         carrying and putting down a box; without a walk-to-box-and-grasp success first, a
         policy never sees what holding and carrying pay. We have no box clips, so the states
-        are built from the oracle's geometry.
+        are built from the oracle's geometry. The approach starts are ours: from the default
+        start (2.5 m away, facing anywhere) walking to the box is paid only by `walk_to_box`,
+        and no policy learned it there (results/laptop/README.md, "Carry"); nearer starts
+        reach the pick-up, whose rewards are larger, by walking a little.
         """
         n, dev = len(obj_rest), obj_rest.device
-        u = torch.rand(n, generator=gen, device=gen.device).to(dev)
-        noise = (torch.rand(n, generator=gen, device=gen.device).to(dev) * 2 - 1) * HELD_YAW_NOISE
-        held = torch.rand(n, generator=gen, device=gen.device).to(dev) >= PICK_UP_SHARE
+
+        def uniform(lo: float, hi: float) -> torch.Tensor:
+            return lo + (hi - lo) * torch.rand(n, generator=gen, device=gen.device).to(dev)
+
+        u, noise, draw = uniform(0, 1), uniform(-HELD_YAW_NOISE, HELD_YAW_NOISE), uniform(0, 1)
+        side, dist, turn = uniform(-APPROACH_SPREAD, APPROACH_SPREAD), uniform(*APPROACH_RANGE), \
+            uniform(-APPROACH_YAW_NOISE, APPROACH_YAW_NOISE)
+        approaching = draw < APPROACH_SHARE
+        held = draw >= APPROACH_SHARE + PICK_UP_SHARE
         u = torch.where(held, u, torch.zeros_like(u))
         lift = torch.where(held, torch.full_like(u, LIFT), torch.zeros_like(u))
         route = target[:, :2] - obj_rest[:, :2]
+        heading = torch.atan2(route[:, 1], route[:, 0])
         box_xy = obj_rest[:, :2] + u[:, None] * route
-        yaw = torch.atan2(route[:, 1], route[:, 0]) + noise
+        yaw = heading + noise
         hinges, reach = reach_pose((obj_rest[:, 2] + obj_half[:, 2] + lift).cpu())
         ahead = reach.to(dev) + (obj_half[:, 0] - 0.15).clamp(min=0.05)
         root_xy = box_xy - torch.stack((yaw.cos(), yaw.sin()), -1) * ahead[:, None]
+        # approach: out from the box toward the destination (turned by `side`), facing back
+        out = heading + side
+        away = torch.minimum(dist, route.norm(dim=-1))
+        stand = obj_rest[:, :2] + torch.stack((out.cos(), out.sin()), -1) * away[:, None]
+        root_xy = torch.where(approaching[:, None], stand, root_xy)
+        yaw = torch.where(approaching, wrap_angle(out + math.pi + turn), yaw)
+        hinges = torch.where(approaching[:, None].cpu(), torch.zeros_like(hinges), hinges)
         box = torch.cat((box_xy, (obj_rest[:, 2] + lift)[:, None]), -1)
         return MidTaskStart(root_xy, yaw, torch.full((n,), START_HEIGHT, device=dev), hinges.to(dev),
-                            box, quat_from_yaw(yaw), held=held)
+                            box, quat_from_yaw(heading + torch.where(approaching, 0.0, noise)), held=held)
 
     def update_stats(self, ctx, active, stats) -> None:
         ar = torch.arange(ctx.num_envs, device=self.device)
