@@ -11,7 +11,7 @@ import torch
 
 from detach import cli
 from detach.character.puppet import GRASP_ACTION, GRASP_HAND_DIST
-from detach.torch_math import point_box_distance, yaw_of
+from detach.torch_math import heading_matrix, point_box_distance, yaw_of
 from detach.character.body import START_HEIGHT
 from detach.config import resolve
 from detach.envs.lh_env import make_env
@@ -175,3 +175,21 @@ def test_carrying_the_box_toward_its_destination_pays_at_any_distance() -> None:
     assert bool((to[sel] > still[sel] + 0.05).all()) and bool((still[sel] > away[sel]).all())
     sel = ~lifted & far
     assert torch.allclose(to[sel], still[sel])
+
+
+def test_carry_shows_the_box_as_its_target_until_it_is_lifted_then_the_destination() -> None:
+    env = _env(1.0, n=32)
+    ar = torch.arange(env.num_envs)
+    box = env.tracker.objects[:, 0]
+    st = env.state
+    held = env.character.held_object() >= 0
+    spec = env.obs_spec
+    newest = env.get_observations()["env"].reshape(env.num_envs, spec.env_steps, spec.env_dim)[:, -1]
+    R = heading_matrix(yaw_of(st.root_quat))
+    def shown(world: torch.Tensor) -> torch.Tensor:
+        return ((world - st.root_pos)[:, None] @ R)[:, 0]
+    destination = torch.tensor(env.plan[0].fixed_target).expand(env.num_envs, 3)
+    target, path = newest[:, spec.env_fields()["target"]], newest[:, spec.env_fields()["path"]]
+    assert torch.allclose(target[held], shown(destination)[held], atol=1e-4)
+    assert torch.allclose(target[~held], shown(st.obj_pos[ar, box])[~held], atol=1e-4)
+    assert torch.allclose(path[~held, :2], shown(st.obj_pos[ar, box])[~held, :2], atol=1e-4)  # path points too

@@ -10,7 +10,8 @@ Groups and their frame layouts (sizes for the 15-body, 32-DoF character):
 - `self` (287 per frame): root height (1), positions of the 14 non-root bodies (42), rotations
   of the 15 bodies as tangent/normal 6-D (90), linear (45) and angular (45) velocities of the
   15 bodies, hinge positions (32) and velocities (32). Proprioception only.
-- `env` (681 per frame): current target relative to the root (3); `env.trajectory.num_samples`
+- `env` (681 per frame): the place to make for now (`Skill.goal`: the subtask's target, but
+  Carry's box until it is lifted) relative to the root (3); `env.trajectory.num_samples`
   (10) path points `sample_dt` (0.5 s) apart, XY relative to the root (20; the target's XY
   repeated outside subtasks that follow a path); the subtask's object: position relative to
   the root (3), rotation 6-D (6), its 8 bounding-box corners relative to the root (24), zeros
@@ -216,7 +217,7 @@ class ObservationBuilder:
         else:
             hmap = torch.zeros(self.num_envs, self.hm_offsets.shape[0], device=self.device)
         f_self = self_frame(st.body_pos, st.body_quat, st.body_lin, st.body_ang, st.dof_pos, st.dof_vel, R)
-        f_env = env_frame(st.root_pos, R, ctx.target, path_ahead, follows_path, ctx.has_obj, ctx.obj_pos,
+        f_env = env_frame(st.root_pos, R, ctx.goal, path_ahead, follows_path, ctx.has_obj, ctx.obj_pos,
                           ctx.obj_quat, ctx.obj_half, hmap)
         f_amp = f_self[:, self.amp_idx]  # == amp_frame(...) of the same state (tested)
         for h, f in ((self.h_self, f_self), (self.h_env, f_env), (self.h_amp, f_amp)):

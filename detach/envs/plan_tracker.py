@@ -79,6 +79,11 @@ class PlanTracker:
         for i, skill in self.skills.items():
             target = torch.where((ctx.skill == i)[:, None], skill.target(ctx), target)
         ctx.target = target
+        goal = target
+        for i, skill in self.skills.items():
+            if type(skill).goal is not Skill.goal:
+                goal = torch.where((ctx.skill == i)[:, None], skill.goal(ctx), goal)
+        ctx.goal = goal
         dist = torch.zeros(n, device=dev)
         for i, skill in self.skills.items():
             dist = torch.where(ctx.skill == i, skill.distance(ctx), dist)

@@ -147,6 +147,12 @@ class Skill:
         """World target [N, 3] for envs on this skill (values elsewhere are ignored)."""
         return ctx.fixed_target
 
+    def goal(self, ctx: "SkillContext") -> torch.Tensor:
+        """The world point [N, 3] the character makes for now, shown to the policy as the
+        current target (ctx.target filled; default: the target). A skill whose task passes
+        through another place first (Carry: the box) shows that place until it is reached."""
+        return ctx.target
+
     def distance(self, ctx: "SkillContext") -> torch.Tensor:
         """Anchor-to-target distance [N], metres (default: pelvis to target, 3-D)."""
         return (ctx.state.root_pos - ctx.target).norm(dim=-1)

@@ -142,6 +142,14 @@ class Carry(Skill):
     def distance(self, ctx: SkillContext) -> torch.Tensor:
         return (ctx.obj_pos - ctx.target).norm(dim=-1)
 
+    def goal(self, ctx: SkillContext) -> torch.Tensor:
+        """The box until it is lifted, then the destination (also once the box is down near
+        it). Ours: the policy sees the box and the destination either way; showing the place to
+        walk to now in the target that Follow walks to lets a Follow policy walk to the box
+        and carry it home without learning a new input first."""
+        near = (ctx.obj_pos[:, :2] - ctx.target[:, :2]).norm(dim=-1) < NEAR
+        return torch.where((box_lifted(ctx) | near)[:, None], ctx.target, ctx.obj_pos)
+
     def mid_task_start(self, obj_rest, obj_half, target, gen) -> MidTaskStart:
         """One of three starts, drawn per episode: (`APPROACH_SHARE`) standing some way from the
         box, turned partly away from it; (`PICK_UP_SHARE`) at the box, in the oracle's reach

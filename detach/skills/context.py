@@ -75,6 +75,9 @@ class SkillContext:
     """[N, 2] the reference's velocity now (m/s; 0 once the path has ended)."""
     target: torch.Tensor = field(default=None)  # type: ignore[assignment]
     """[N, 3] world target of each env's subtask (filled by the env from the skills)."""
+    goal: torch.Tensor = field(default=None)  # type: ignore[assignment]
+    """[N, 3] the world point each env's character makes for now: the observation's target and,
+    off a trajectory, its path points (`Skill.goal`; filled by the env from the skills)."""
     dist: torch.Tensor = field(default=None)  # type: ignore[assignment]
     """[N] anchor-to-target distance (filled by the env from the skills)."""
     extra: dict[str, Any] = field(default_factory=dict)
