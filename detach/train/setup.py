@@ -230,11 +230,11 @@ def set_action_std(actor: torch.nn.Module, std: float) -> float:
     parameter) to `std`; returns the mean std it had."""
     dist = getattr(actor, "distribution", None)
     if hasattr(dist, "std_param"):
-        before = float(dist.std_param.mean())
+        before = float(dist.std_param.detach().mean())
         with torch.no_grad():
             dist.std_param.fill_(std)
     elif hasattr(dist, "log_std_param"):
-        before = float(dist.log_std_param.exp().mean())
+        before = float(dist.log_std_param.detach().exp().mean())
         with torch.no_grad():
             dist.log_std_param.fill_(math.log(std))
     else:
