@@ -25,7 +25,7 @@ import torch.nn as nn
 
 from dataclasses import dataclass
 
-from detach.models.layout import ObsLayout, TrunkModelCfg, align_time
+from detach.models.layout import ObsLayout, TrunkModelCfg, align_time, no_columns, stack_columns
 
 
 @dataclass(frozen=True)
@@ -58,6 +58,18 @@ class CMLTrunk(nn.Module):
         _, d_env = layout.history_shape("env")
         self.gru = nn.GRU(d_self + d_env, cfg.gru_hidden, batch_first=True)
         self.out_dim = cfg.gru_hidden + layout.dim("task") + sum(layout.dim(g) for g in layout.extra_groups)
+
+    def input_weights(self) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """The GRU's input weights over [self frame; env frame] (env frames resampled to the
+        self history's length, so an env column stands for all of its frames)."""
+        lay = self.layout
+        return [(self.gru.weight_ih_l0, stack_columns(lay.columns("self"), lay.columns("env")))]
+
+    def output_columns(self) -> torch.Tensor:
+        """h_T is computed; the task one-hot and the extras are inputs passed on."""
+        lay = self.layout
+        return stack_columns(no_columns(self.gru.hidden_size), lay.columns("task"),
+                             *(lay.columns(g) for g in lay.extra_groups))
 
     def forward(self, groups: dict[str, torch.Tensor]) -> torch.Tensor:
         x_self = groups["self"]

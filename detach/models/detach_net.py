@@ -28,7 +28,7 @@ from detach.models.encoders import (
     EnvEncoder, EnvEncoderCfg, FrameDecoder, SelfEncoder, SelfEncoderCfg, TemporalPredictor,
 )
 from detach.models.fusion import AdaptiveFusion, FusionCfg, FusionOutput
-from detach.models.layout import ObsLayout, TrunkModelCfg
+from detach.models.layout import ObsLayout, TrunkModelCfg, no_columns
 from detach.models.losses import RegularizerCfg
 
 
@@ -126,6 +126,26 @@ class DetachTrunk(nn.Module):
 
         self.env_anchor = ParamAnchor(self.env_encoder) if self.env_encoder else None
         self.self_anchor = ParamAnchor(self.self_encoder) if self.self_encoder else None
+
+    # ----- input layers (`train.init_normalizers: merge`) -----
+    def input_weights(self) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """(weight [out, in], its input columns [in, F] in the layout) of every layer that
+        reads the normalised groups directly."""
+        lay = self.layout
+        env = self.env_encoder.embed[0].weight if self.env_encoder else self.proj_env.weight
+        if self.self_encoder:
+            gru = self.self_encoder.gru
+            own = [getattr(gru, n) for n in ("weight_ih_l0", "weight_ih_l0_reverse") if hasattr(gru, n)]
+        else:
+            own = [self.proj_self.weight]
+        out = [(env, lay.columns("env")), (self.task_token.weight, lay.columns("task"))]
+        out += [(w, lay.columns("self")) for w in own]
+        out += [(self.extra_tokens[g].weight, lay.columns(g)) for g in lay.extra_groups]
+        return out
+
+    def output_columns(self) -> torch.Tensor:
+        """No output of the trunk is an input passed through."""
+        return no_columns(self.out_dim)
 
     # ----- forward -----
     def encode(self, groups: dict[str, torch.Tensor]) -> DetachFeatures:

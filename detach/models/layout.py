@@ -74,6 +74,16 @@ class ObsLayout:
     def dim(self, group: str) -> int:
         return self.dims[self.groups.index(group)]
 
+    def columns(self, group: str) -> torch.Tensor:
+        """Flat input indices of `group` as its layers read them: [d, T] for a history (column
+        c of frame t at [c, t]), [D, 1] for a flat group (`input_columns` hooks)."""
+        i = self.groups.index(group)
+        start = sum(self.dims[:i])
+        if group in HISTORY_GROUPS:
+            t, d = self.history_shape(group)
+            return start + torch.arange(t * d).reshape(t, d).T
+        return start + torch.arange(self.dims[i])[:, None]
+
     def split(self, x: torch.Tensor) -> dict[str, torch.Tensor]:
         """[N, sum(dims)] -> {group: [N, T, d] for histories, [N, D] otherwise}."""
         out: dict[str, torch.Tensor] = {}
@@ -95,3 +105,14 @@ def align_time(x: torch.Tensor, steps: int) -> torch.Tensor:
         return x
     y = F.interpolate(x.transpose(1, 2), size=steps, mode="linear", align_corners=True)
     return y.transpose(1, 2)
+
+
+def stack_columns(*parts: torch.Tensor) -> torch.Tensor:
+    """Concatenate column maps [k_i, F_i] along k, padding the frame axis with -1 (no input)."""
+    width = max((p.shape[1] for p in parts), default=1)
+    return torch.cat([F.pad(p, (0, width - p.shape[1]), value=-1) for p in parts])
+
+
+def no_columns(k: int) -> torch.Tensor:
+    """Column map [k, 1] of k features that are no input of the model's (computed ones)."""
+    return torch.full((k, 1), -1, dtype=torch.long)

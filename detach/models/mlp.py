@@ -54,6 +54,20 @@ class FlatTrunk(nn.Module):
         steps, dim = self.layout.history_shape(group)
         return min(self.frames, steps) * dim
 
+    def input_weights(self) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """None: the trunk passes its inputs on (`output_columns`)."""
+        return []
+
+    def output_columns(self) -> torch.Tensor:
+        """[out_dim, 1]: the input column behind each output (the kept frames, concatenated)."""
+        parts = []
+        for g in self.layout.groups:
+            cols = self.layout.columns(g)
+            if g in HISTORY_GROUPS and self.frames > 0:
+                cols = cols[:, -self.frames:]
+            parts.append(cols.T.reshape(-1, 1))  # time-major, as forward flattens
+        return torch.cat(parts)
+
     def forward(self, groups: dict[str, torch.Tensor]) -> torch.Tensor:
         n = groups[self.layout.groups[0]].shape[0]
         parts = []

@@ -63,7 +63,7 @@ from detach.envs.obs_spec import ObsSpec
 from detach.models.adapters import CooperativePolicy, HeadAdapter
 from detach.models.cml import CMLCfg, CMLTrunk
 from detach.models.detach_net import DetachCfg, DetachFeatures, DetachTrunk
-from detach.models.layout import ObsLayout
+from detach.models.layout import ObsLayout, no_columns, stack_columns
 from detach.models.losses import combine_aux_losses
 from detach.models.mlp import FlatTrunk, MLPCfg
 from detach.models.tokenhsi import ACTIVE_SKILLS, TokenHSICfg, TokenHSITrunk, TokenHSIValueTrunk
@@ -261,6 +261,21 @@ class StructuredModel(MLPModel):
         self.objective_weights.copy_(w)
 
     # ----- uniform hooks for trainers (no-ops except in DetachModel) -----
+    def input_weights(self) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """(weight [out, in], input columns [in, F]) of every layer that reads the normalised
+        observation directly (column c of the weight reads the normaliser's outputs
+        cols[c] in every frame; -1 none): the trunk's own and the head's first layer, which
+        reads the inputs the trunk passes on and `head_groups`. `train.init_normalizers:
+        merge` zeroes the columns of inputs the source run never saw vary."""
+        own = self.owns_trunk
+        trunk_out = self.trunk.output_columns() if own else no_columns(self._owner_out_dim())
+        head = stack_columns(trunk_out, *(self.layout.columns(g) for g in self.head_groups))
+        first = next(m for m in self.mlp if isinstance(m, nn.Linear))
+        return (self.trunk.input_weights() if own else []) + [(first.weight, head)]
+
+    def _owner_out_dim(self) -> int:
+        return self._latent_dim - sum(self.layout.dim(g) for g in self.head_groups)
+
     def aux_losses(self, obs: TensorDict) -> dict[str, torch.Tensor]:
         """Auxiliary loss terms; none for the baselines."""
         return {}

@@ -35,7 +35,7 @@ import torch.nn as nn
 from rsl_rl.modules import MLP
 
 from detach.models.attention import MultiHeadAttention
-from detach.models.layout import ObsLayout, TrunkModelCfg
+from detach.models.layout import ObsLayout, TrunkModelCfg, no_columns
 from detach.skills import canonical_name, skill_class, skill_names
 
 ACTIVE_SKILLS = "active_skills"
@@ -114,6 +114,7 @@ class TokenHSITrunk(nn.Module):
     def __init__(self, layout: ObsLayout, cfg: TokenHSICfg) -> None:
         super().__init__()
         layout.require("self", "env", "task")
+        self.layout = layout
         skills = skill_names()
         if layout.spec.num_skills != len(skills):
             raise ValueError(f"TokenHSI has one task tokenizer per registered skill ({', '.join(skills)}); "
@@ -130,6 +131,20 @@ class TokenHSITrunk(nn.Module):
         self.action_token = nn.Parameter(nn.init.trunc_normal_(torch.zeros(1, 1, d), std=0.02))
         self.transformer = TokenEncoder(d, cfg.num_heads, cfg.ff_dim, cfg.num_layers)
         self.out_dim = d
+
+    def input_weights(self) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """The first layers of the self tokenizer (the newest `self_frames`, flattened) and of
+        each task tokenizer (its entries of the newest env frame)."""
+        lay = self.layout
+        own = lay.columns("self")[:, -self.self_frames:].T.reshape(-1, 1)
+        newest_env = lay.columns("env")[:, -1:]
+        out = [(self.self_tokenizer[0].weight, own)]
+        for skill, tokenizer in self.task_tokenizers.items():
+            out.append((tokenizer[0].weight, newest_env[getattr(self, f"{skill}_index").cpu()]))
+        return out
+
+    def output_columns(self) -> torch.Tensor:
+        return no_columns(self.out_dim)
 
     def forward(self, groups: dict[str, torch.Tensor]) -> torch.Tensor:
         if ACTIVE_SKILLS not in groups:
@@ -153,7 +168,15 @@ class TokenHSIValueTrunk(nn.Module):
     def __init__(self, layout: ObsLayout, cfg: TokenHSICfg) -> None:
         super().__init__()
         layout.require("critic")
+        self.layout = layout
         self.out_dim = layout.dim("critic")
+
+    def input_weights(self) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        return []
+
+    def output_columns(self) -> torch.Tensor:
+        """The `critic` group, passed on."""
+        return self.layout.columns("critic")
 
     def forward(self, groups: dict[str, torch.Tensor]) -> torch.Tensor:
         return groups["critic"]

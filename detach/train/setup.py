@@ -218,7 +218,8 @@ def load_initial_weights(runner: DetachRunner, cfg: RunConfig) -> str:
     if cfg.train.init_normalizers == "restart":
         restarted = f", {restart_normalizers(alg.actor, alg.critic)} observation normalisers restarted"
     elif cfg.train.init_normalizers == "merge":
-        restarted = f", {merge_normalizers(alg.actor, alg.critic)} observation normalisers merged"
+        merged, zeroed = merge_normalizers(alg.actor, alg.critic)
+        restarted = f", {merged} observation normalisers merged ({zeroed} weight columns on unseen inputs zeroed)"
     if cfg.train.init_action_std is not None:
         restarted += f", action std {set_action_std(alg.actor, cfg.train.init_action_std):.2f} -> " \
                      f"{cfg.train.init_action_std:g}"
@@ -247,10 +248,11 @@ UNSEEN_VAR = 1e-12
 """An input whose variance in the source run's statistics is at most this never varied there."""
 
 
-def merge_normalizers(*modules: torch.nn.Module) -> int:
-    """Keep the source's observation statistics for the inputs it saw vary and take this run's
-    task's for the inputs it never saw vary (`train.init_normalizers: merge`); returns how many
-    normalisers changed.
+def merge_normalizers(*modules: torch.nn.Module) -> tuple[int, int]:
+    """Keep the source's observation statistics for the inputs it saw vary, take this run's
+    task's for the inputs it never saw vary, and start the weights that read those inputs at
+    zero (`train.init_normalizers: merge`); returns how many normalisers changed and how many
+    weight columns were zeroed.
 
     Why not restart them all: the policy is a function of the normalised inputs, so new
     statistics for the inputs it has learned from change what it does with them (a Carry
@@ -261,15 +263,40 @@ def merge_normalizers(*modules: torch.nn.Module) -> int:
     Until this run's first update an unseen input normalises to ~0 (its std held at 1e6), the
     value the policy saw in the source; the first update sets its mean and variance to that
     batch's, and later updates weigh it like every other input (by the kept sample count).
-    Frozen normalisers of a frozen pre-trained policy are treated as in `restart_normalizers`.
+    The source never trained the weights that read such an input (its gradient was 0), so
+    they are still their random initialisation: with the new statistics they would turn the
+    new inputs into noise on every action (Follow's policy walked to Carry's box before the
+    first update and away from it after). Zeroed (the model's `input_weights()`: a column is
+    zeroed when its input is unseen in every frame it reads), the new inputs enter the policy
+    only as fast as the gradient takes them in. Frozen normalisers and weights of a frozen
+    pre-trained policy are treated as in `restart_normalizers` and left as they are.
     """
-    count = 0
-    for norm, frozen in _normalizers(modules):
-        unseen = _hold_unseen(norm)
-        if not frozen:
-            _take_unseen_from_first_update(norm, unseen)
-        count += 1
-    return count
+    count = zeroed = 0
+    for module in modules:
+        frozen_base = bool(getattr(module, "new_parameter_prefixes", lambda: ())())
+        for name, norm in _module_normalizers(module):
+            frozen = frozen_base and name == "obs_normalizer"
+            unseen = _hold_unseen(norm)
+            if not frozen:
+                _take_unseen_from_first_update(norm, unseen)
+                if name == "obs_normalizer" and not frozen_base and hasattr(module, "input_weights"):
+                    zeroed += zero_unseen_input_weights(module, unseen)
+            count += 1
+    return count, zeroed
+
+
+def zero_unseen_input_weights(module: torch.nn.Module, unseen: torch.Tensor) -> int:
+    """Zero the columns of `module.input_weights()` whose inputs are all in `unseen` [D] (the
+    normaliser's output columns); returns how many columns were zeroed."""
+    zeroed = 0
+    with torch.no_grad():
+        for weight, cols in module.input_weights():
+            cols = cols.to(unseen.device)
+            read = cols >= 0
+            idle = torch.where(read, unseen[cols.clamp(min=0)], torch.ones_like(read)).all(-1) & read.any(-1)
+            weight[:, idle.to(weight.device)] = 0.0
+            zeroed += int(idle.sum())
+    return zeroed
 
 
 def _normalizers(modules: Sequence[torch.nn.Module]) -> Iterator[tuple[EmpiricalNormalization, bool]]:
@@ -278,9 +305,14 @@ def _normalizers(modules: Sequence[torch.nn.Module]) -> Iterator[tuple[Empirical
     cooperative policy), which is never updated."""
     for module in modules:
         frozen_base = bool(getattr(module, "new_parameter_prefixes", lambda: ())())
-        for name, sub in module.named_modules():
-            if isinstance(sub, EmpiricalNormalization):
-                yield sub, frozen_base and name == "obs_normalizer"
+        for name, sub in _module_normalizers(module):
+            yield sub, frozen_base and name == "obs_normalizer"
+
+
+def _module_normalizers(module: torch.nn.Module) -> Iterator[tuple[str, EmpiricalNormalization]]:
+    for name, sub in module.named_modules():
+        if isinstance(sub, EmpiricalNormalization):
+            yield name, sub
 
 
 def _hold_unseen(norm: EmpiricalNormalization) -> torch.Tensor:
