@@ -137,6 +137,13 @@ def test_merged_statistics_keep_what_the_policy_learned_from_and_take_the_rest_f
     assert float(z[..., unseen].max()) < 1e-3
     torch.testing.assert_close(norm._mean, saved["obs_normalizer._mean"])
     torch.testing.assert_close(norm._std[..., ~unseen], saved["obs_normalizer._std"][..., ~unseen])
+    # the head's first layer read the unseen inputs with its random initial weights: now zero,
+    # every other weight as trained
+    first = actor.mlp[0].weight
+    reads = unseen[actor.trunk.output_columns()[:, 0]]  # the kept frames' inputs, in head order
+    assert 0 < int(reads.sum()) < len(reads)
+    assert bool((first[:, reads] == 0).all())
+    torch.testing.assert_close(first[:, ~reads], saved["mlp.0.weight"][:, ~reads])
     batch = torch.randn(64, norm._mean.shape[-1]) * 3.0 + 2.0
     norm.train()
     norm.update(batch)

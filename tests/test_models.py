@@ -445,3 +445,41 @@ def test_rsl_rl_runner_trains_one_iteration(name: str) -> None:
     runner.learn(1)
     after = list(runner.alg.actor.parameters())
     assert any(not torch.equal(a, b) for a, b in zip(before, after))
+
+
+@pytest.mark.parametrize("name", list(KINDS))
+def test_zeroed_input_weights_make_a_model_ignore_unseen_inputs_and_still_learn_them(name: str) -> None:
+    """`train.init_normalizers: merge` zeroes the weights that read inputs the source run never
+    saw vary; each model's `input_weights()` must name exactly the layers that read them."""
+    from detach.train.setup import zero_unseen_input_weights
+
+    actor, critic, obs = build(name)
+    for model in (actor, critic):
+        lay = model.layout
+        unseen = torch.zeros(sum(lay.dims), dtype=torch.bool)
+        some = torch.zeros(sum(lay.dims), dtype=torch.bool)  # unseen in one frame only: kept
+        for g in lay.groups:
+            cols = lay.columns(g)
+            if g == "env":
+                unseen[cols[:5].reshape(-1)] = True
+                some[cols[5:7, -1]] = True
+            elif g in ("critic",) or (g == "task" and name != "tokenhsi"):  # TokenHSI masks by the one-hot
+                half = cols.shape[0] // 2
+                unseen[cols[:half].reshape(-1)] = True
+                if g == "critic":  # TokenHSI's critic reads nothing else
+                    some[cols[half:half + 2].reshape(-1)] = True
+        assert zero_unseen_input_weights(model, unseen) > 0
+
+        def changed(mask: torch.Tensor) -> TensorDict:
+            out = obs.clone()
+            for g, part in zip(lay.groups, torch.split(mask, list(lay.dims))):
+                out[g] = out[g] + 3.0 * part.float()
+            return out
+
+        with torch.no_grad():
+            torch.testing.assert_close(model(changed(unseen)), model(obs))
+            assert not torch.allclose(model(changed(some)), model(obs))
+        weights = [w for w, _cols in model.input_weights()]
+        assert weights and all(w.requires_grad for w in weights)
+        model(changed(unseen)).pow(2).sum().backward()
+        assert any(float(w.grad.abs().sum()) > 0 for w in weights if w.grad is not None)
