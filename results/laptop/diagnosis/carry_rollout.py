@@ -1,6 +1,7 @@
 """Where does a Carry policy go? Median root-to-box XY distance, the share of envs within 0.6 m,
-the hands' median distance to the box surface, the share asking to grasp and the mean forward
-action, every 60 control steps of 8 s (16 envs, mean actions), per checkpoint.
+the hands' median distance to the box surface, the share asking to grasp, the mean forward
+action, and the shares with the box lifted and delivered (within 0.5 m of the destination),
+every 60 control steps of 8 s (16 envs, mean actions), per checkpoint.
 
     python results/laptop/diagnosis/carry_rollout.py RUN_DIR CHECKPOINT.pt [CHECKPOINT.pt ...]
 """
@@ -12,7 +13,7 @@ from detach.runs.session import eval_config
 from detach.envs.lh_env import make_env
 from detach.runs.policy import load_policy
 from detach.train.setup import seed_everything
-from detach.skills.carry import HAND_IDS
+from detach.skills.carry import HAND_IDS, box_lifted
 from detach.torch_math import point_box_distance
 
 run = RunFolder(Path(sys.argv[1]))
@@ -33,7 +34,9 @@ for name in sys.argv[2:]:
                 hands = ctx.state.body_pos[:, HAND_IDS]
                 h = point_box_distance(hands, ctx.obj_pos[:, None], ctx.obj_quat[:, None],
                                        ctx.obj_half[:, None]).mean(-1)
+                home = (ctx.obj_pos[:, :2] - ctx.target[:, :2]).norm(dim=-1) < 0.5
                 rows.append((t + 1, d.median().item(), (d < 0.6).float().mean().item(), h.median().item(),
-                             (a[:, -1] > 0).float().mean().item(), a[:, 32].mean().item()))
-    print(Path(name).name, " ".join(f"t{t}: box {dm:.2f}m near {nf:.2f} hands {hm:.2f} grasp>0 {g:.2f} fwd {f:+.2f}"
-                              for t, dm, nf, hm, g, f in rows[::2]))
+                             (a[:, -1] > 0).float().mean().item(), a[:, 32].mean().item(),
+                             box_lifted(ctx).float().mean().item(), home.float().mean().item()))
+    print(Path(name).name, " ".join(f"t{t}: box {dm:.2f}m near {nf:.2f} hands {hm:.2f} grasp>0 {g:.2f} fwd {f:+.2f} "
+                                    f"lifted {lf:.2f} home {hf:.2f}" for t, dm, nf, hm, g, f, lf, hf in rows[::2]))
