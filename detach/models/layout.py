@@ -76,7 +76,7 @@ class ObsLayout:
 
     def columns(self, group: str) -> torch.Tensor:
         """Flat input indices of `group` as its layers read them: [d, T] for a history (column
-        c of frame t at [c, t]), [D, 1] for a flat group (`input_columns` hooks)."""
+        c of frame t at [c, t]), [D, 1] for a flat group (the models' `input_weights`)."""
         i = self.groups.index(group)
         start = sum(self.dims[:i])
         if group in HISTORY_GROUPS:
