@@ -177,7 +177,7 @@ def test_carrying_the_box_toward_its_destination_pays_at_any_distance() -> None:
     assert torch.allclose(to[sel], still[sel])
 
 
-def test_carry_shows_the_box_as_its_target_until_it_is_lifted_then_the_destination() -> None:
+def test_carry_shows_the_box_as_its_target_until_it_is_lifted_then_where_to_stand_to_set_it_down() -> None:
     env = _env(1.0, n=32)
     ar = torch.arange(env.num_envs)
     box = env.tracker.objects[:, 0]
@@ -188,7 +188,9 @@ def test_carry_shows_the_box_as_its_target_until_it_is_lifted_then_the_destinati
     R = heading_matrix(yaw_of(st.root_quat))
     def shown(world: torch.Tensor) -> torch.Tensor:
         return ((world - st.root_pos)[:, None] @ R)[:, 0]
-    destination = torch.tensor(env.plan[0].fixed_target).expand(env.num_envs, 3)
+    destination = torch.tensor(env.plan[0].fixed_target).expand(env.num_envs, 3).clone()
+    # a lifted box's goal: where the pelvis stands when the held box is on the destination
+    destination[:, :2] += st.root_pos[:, :2] - st.obj_pos[ar, box, :2]
     target, path = newest[:, spec.env_fields()["target"]], newest[:, spec.env_fields()["path"]]
     assert torch.allclose(target[held], shown(destination)[held], atol=1e-4)
     assert torch.allclose(target[~held], shown(st.obj_pos[ar, box])[~held], atol=1e-4)

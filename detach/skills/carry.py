@@ -143,12 +143,17 @@ class Carry(Skill):
         return (ctx.obj_pos - ctx.target).norm(dim=-1)
 
     def goal(self, ctx: SkillContext) -> torch.Tensor:
-        """The box until it is lifted, then the destination (also once the box is down near
-        it). Ours: the policy sees the box and the destination either way; showing the place to
-        walk to now in the target that Follow walks to lets a Follow policy walk to the box
-        and carry it home without learning a new input first."""
+        """The box until it is lifted; then (also once the box is down near the destination)
+        where the pelvis stands when the box, where it is held now, is on the destination:
+        the destination moved by the pelvis-to-box offset (XY; the destination's height). Ours:
+        the policy sees the box and the destination either way; showing the place to walk to
+        now in the target that Follow walks to lets a Follow policy walk to the box and carry
+        it home without learning a new input first (walked to the destination itself, the
+        pelvis stopped there with the held box 0.6 m past it)."""
         near = (ctx.obj_pos[:, :2] - ctx.target[:, :2]).norm(dim=-1) < NEAR
-        return torch.where((box_lifted(ctx) | near)[:, None], ctx.target, ctx.obj_pos)
+        offset = torch.zeros_like(ctx.target)
+        offset[:, :2] = ctx.state.root_pos[:, :2] - ctx.obj_pos[:, :2]
+        return torch.where((box_lifted(ctx) | near)[:, None], ctx.target + offset, ctx.obj_pos)
 
     def mid_task_start(self, obj_rest, obj_half, target, gen) -> MidTaskStart:
         """One of three starts, drawn per episode: (`APPROACH_SHARE`) standing some way from the
