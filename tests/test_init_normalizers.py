@@ -113,7 +113,7 @@ def test_a_later_stage_can_start_with_a_smaller_action_std(follow_run: Path, tmp
         f"train.init_from={follow_run}"]))
     _env, runner = build_runner(kept, None, "cpu", progress=False)
     load_initial_weights(runner, kept)
-    assert float(runner.alg.actor.distribution.std_param.min()) > 0.9  # the source's, kept
+    assert float(runner.alg.actor.distribution.std_param.detach().min()) > 0.9  # the source's, kept
     capsys.readouterr()
     assert cli.main(["train", str(ROOT / "configs/tasks/carry.yaml"), "--model", "mlp", "--runs",
                      str(tmp_path / "runs"), *TINY, "train.init_action_std=0.3"]) == 2
