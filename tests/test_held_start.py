@@ -26,12 +26,14 @@ def _env(prob: float, eval_mode: bool = False, n: int = 16):
     return make_env(cfg, num_envs=n, verbose=False, eval_mode=eval_mode)
 
 
+def _started(n: int):
+    """Every start mid-task: (env, env indices, each env's box, state, which start holding it)."""
+    env = _env(1.0, n=n)
+    return env, torch.arange(env.num_envs), env.tracker.objects[:, 0], env.state, env.character.held_object() >= 0
+
+
 def test_mid_task_starts_hold_the_episodes_box_up_on_its_way_or_stand_at_it_or_near_it() -> None:
-    env = _env(1.0, n=48)
-    ar = torch.arange(env.num_envs)
-    box = env.tracker.objects[:, 0]
-    st = env.state
-    held = env.character.held_object() >= 0
+    env, ar, box, st, held = _started(48)
     rest = env.resets.obj_rest[box]
     to_box = (st.root_pos[:, :2] - rest[:, :2]).norm(dim=-1)
     approaching = ~held & (to_box > APPROACH_RANGE[0] - 0.01)
@@ -178,11 +180,7 @@ def test_carrying_the_box_toward_its_destination_pays_at_any_distance() -> None:
 
 
 def test_carry_shows_the_box_as_its_target_until_it_is_lifted_then_where_to_stand_to_set_it_down() -> None:
-    env = _env(1.0, n=32)
-    ar = torch.arange(env.num_envs)
-    box = env.tracker.objects[:, 0]
-    st = env.state
-    held = env.character.held_object() >= 0
+    env, ar, box, st, held = _started(32)
     spec = env.obs_spec
     newest = env.get_observations()["env"].reshape(env.num_envs, spec.env_steps, spec.env_dim)[:, -1]
     R = heading_matrix(yaw_of(st.root_quat))

@@ -272,16 +272,13 @@ def merge_normalizers(*modules: torch.nn.Module) -> tuple[int, int]:
     pre-trained policy are treated as in `restart_normalizers` and left as they are.
     """
     count = zeroed = 0
-    for module in modules:
-        frozen_base = bool(getattr(module, "new_parameter_prefixes", lambda: ())())
-        for name, norm in _module_normalizers(module):
-            frozen = frozen_base and name == "obs_normalizer"
-            unseen = _hold_unseen(norm)
-            if not frozen:
-                _take_unseen_from_first_update(norm, unseen)
-                if name == "obs_normalizer" and not frozen_base and hasattr(module, "input_weights"):
-                    zeroed += zero_unseen_input_weights(module, unseen)
-            count += 1
+    for module, name, norm, frozen in _normalizers(modules):
+        unseen = _hold_unseen(norm)
+        if not frozen:
+            _take_unseen_from_first_update(norm, unseen)
+            if name == "obs_normalizer" and hasattr(module, "input_weights"):  # the model's own input
+                zeroed += zero_unseen_input_weights(module, unseen)
+        count += 1
     return count, zeroed
 
 
@@ -299,20 +296,16 @@ def zero_unseen_input_weights(module: torch.nn.Module, unseen: torch.Tensor) -> 
     return zeroed
 
 
-def _normalizers(modules: Sequence[torch.nn.Module]) -> Iterator[tuple[EmpiricalNormalization, bool]]:
-    """Every observation normaliser of `modules`, and whether it is the input normaliser of a
-    frozen pre-trained policy (`new_parameter_prefixes()` non-empty: TokenHSI's adapters, CML's
-    cooperative policy), which is never updated."""
+def _normalizers(modules: Sequence[torch.nn.Module]
+                 ) -> Iterator[tuple[torch.nn.Module, str, EmpiricalNormalization, bool]]:
+    """(module, name in it, normaliser, frozen) for every observation normaliser of `modules`;
+    frozen: the input normaliser of a frozen pre-trained policy (`new_parameter_prefixes()`
+    non-empty: TokenHSI's adapters, CML's cooperative policy), which is never updated."""
     for module in modules:
         frozen_base = bool(getattr(module, "new_parameter_prefixes", lambda: ())())
-        for name, sub in _module_normalizers(module):
-            yield sub, frozen_base and name == "obs_normalizer"
-
-
-def _module_normalizers(module: torch.nn.Module) -> Iterator[tuple[str, EmpiricalNormalization]]:
-    for name, sub in module.named_modules():
-        if isinstance(sub, EmpiricalNormalization):
-            yield name, sub
+        for name, sub in module.named_modules():
+            if isinstance(sub, EmpiricalNormalization):
+                yield module, name, sub, frozen_base and name == "obs_normalizer"
 
 
 def _hold_unseen(norm: EmpiricalNormalization) -> torch.Tensor:
@@ -350,7 +343,7 @@ def restart_normalizers(*modules: torch.nn.Module) -> int:
     the value it saw (its std set to 1e6, so it normalises to ~0), as the frozen network knew it.
     """
     count = 0
-    for norm, frozen in _normalizers(modules):
+    for _module, _name, norm, frozen in _normalizers(modules):
         if frozen:
             _hold_unseen(norm)
         else:
