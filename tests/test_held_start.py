@@ -179,7 +179,7 @@ def test_carrying_the_box_toward_its_destination_pays_at_any_distance() -> None:
     assert torch.allclose(to[sel], still[sel])
 
 
-def test_carry_shows_the_box_as_its_target_until_it_is_lifted_then_where_to_stand_to_set_it_down() -> None:
+def test_carry_shows_the_box_as_its_target_until_it_is_carried_then_where_to_stand_to_set_it_down() -> None:
     env, ar, box, st, held = _started(32)
     spec = env.obs_spec
     newest = env.get_observations()["env"].reshape(env.num_envs, spec.env_steps, spec.env_dim)[:, -1]
@@ -187,9 +187,29 @@ def test_carry_shows_the_box_as_its_target_until_it_is_lifted_then_where_to_stan
     def shown(world: torch.Tensor) -> torch.Tensor:
         return ((world - st.root_pos)[:, None] @ R)[:, 0]
     destination = torch.tensor(env.plan[0].fixed_target).expand(env.num_envs, 3).clone()
-    # a lifted box's goal: where the pelvis stands when the held box is on the destination
-    destination[:, :2] += st.root_pos[:, :2] - st.obj_pos[ar, box, :2]
+    # a held box's goal: where the pelvis stands when it walked there facing the destination
+    # with the box in front of it, the box on the destination
+    reach = (st.root_pos[:, :2] - st.obj_pos[ar, box, :2]).norm(dim=-1, keepdim=True)
+    back = st.obj_pos[ar, box, :2] - destination[:, :2]
+    destination[:, :2] += reach * back / back.norm(dim=-1, keepdim=True)
     target, path = newest[:, spec.env_fields()["target"]], newest[:, spec.env_fields()["path"]]
     assert torch.allclose(target[held], shown(destination)[held], atol=1e-4)
     assert torch.allclose(target[~held], shown(st.obj_pos[ar, box])[~held], atol=1e-4)
     assert torch.allclose(path[~held, :2], shown(st.obj_pos[ar, box])[~held, :2], atol=1e-4)  # path points too
+
+
+def test_a_carried_boxs_goal_stays_put_while_the_character_turns_and_walks() -> None:
+    """Attempt 14's defect: the goal was the destination plus the pelvis-to-box offset now,
+    which turns with the heading; a Follow policy chased it round in circles ~1 m away."""
+    env, ar, box, st, held = _started(32)
+    first = env.context().goal.clone()
+    actions = torch.zeros(env.num_envs, env.num_actions)
+    actions[:, 32], actions[:, 34], actions[:, GRASP_ACTION] = 0.5, 0.8, 1.0  # walk on a curve, hold
+    for _ in range(15):
+        env.step(actions)
+    ctx = env.context()
+    still = held & (env.character.held_object() >= 0) & (env.episode_length_buf > 0)
+    assert int(still.sum()) >= 8
+    turned = (yaw_of(ctx.state.root_quat) - yaw_of(st.root_quat)).abs()
+    assert bool((turned[still] > 0.5).all())
+    assert torch.allclose(ctx.goal[still], first[still], atol=1e-5)

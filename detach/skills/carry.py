@@ -138,22 +138,44 @@ class Carry(Skill):
         self.dyn_slot = torch.full((max(len(objects), 1),), -1, dtype=torch.long, device=self.device)
         for k, i in enumerate(services.scene.dynamic):
             self.dyn_slot[i] = k
+        self.carry_goal: torch.Tensor | None = None
+        """[N, 2] where each env's pelvis takes the box (`goal`), fixed when the carry began."""
+        self.carrying: torch.Tensor | None = None
+        """[N] bool: the box was carried at the last `goal` call."""
 
     def distance(self, ctx: SkillContext) -> torch.Tensor:
         return (ctx.obj_pos - ctx.target).norm(dim=-1)
 
     def goal(self, ctx: SkillContext) -> torch.Tensor:
-        """The box until it is lifted; then (also once the box is down near the destination)
-        where the pelvis stands when the box, where it is held now, is on the destination:
-        the destination moved by the pelvis-to-box offset (XY; the destination's height). Ours:
-        the policy sees the box and the destination either way; showing the place to walk to
-        now in the target that Follow walks to lets a Follow policy walk to the box and carry
-        it home without learning a new input first (walked to the destination itself, the
-        pelvis stopped there with the held box 0.6 m past it)."""
+        """The box until it is carried (lifted, held by the character or near the
+        destination); from then on a fixed point: the destination moved toward where the box
+        was taken by the pelvis-to-box distance at that moment (XY; the destination's height),
+        where the pelvis stands when it walked there facing the destination with the box held
+        in front. Ours: the policy sees the box and the destination either way; showing the
+        place to walk to now in the target that Follow walks to lets a Follow policy walk to
+        the box and carry it home without learning a new input first. The point stays put
+        while the box is carried: a goal that moves with the pelvis (the destination plus the
+        current pelvis-to-box offset, which turns with the heading) was chased round in circles
+        about 1 m from it (results/laptop/README.md, attempt 14)."""
+        n = ctx.num_envs
+        if self.carry_goal is None or len(self.carry_goal) != n:
+            self.carry_goal = torch.zeros(n, 2, device=self.device)
+            self.carrying = torch.zeros(n, dtype=torch.bool, device=self.device)
         near = (ctx.obj_pos[:, :2] - ctx.target[:, :2]).norm(dim=-1) < NEAR
-        offset = torch.zeros_like(ctx.target)
-        offset[:, :2] = ctx.state.root_pos[:, :2] - ctx.obj_pos[:, :2]
-        return torch.where((box_lifted(ctx) | near)[:, None], ctx.target + offset, ctx.obj_pos)
+        slot = self.dyn_slot[ctx.obj.clamp(min=0)]
+        carrying = box_lifted(ctx) | near | ((ctx.held == slot) & (slot >= 0))
+        reach = (ctx.state.root_pos[:, :2] - ctx.obj_pos[:, :2]).norm(dim=-1, keepdim=True)
+        back = ctx.obj_pos[:, :2] - ctx.target[:, :2]
+        back = back / back.norm(dim=-1, keepdim=True).clamp(min=1e-6)
+        taken = carrying & ~self.carrying
+        self.carry_goal = torch.where(taken[:, None], ctx.target[:, :2] + reach * back, self.carry_goal)
+        self.carrying = carrying
+        goal = torch.cat((self.carry_goal, ctx.target[:, 2:]), -1)
+        return torch.where(carrying[:, None], goal, ctx.obj_pos)
+
+    def start(self, ids: torch.Tensor, subtask: torch.Tensor, root_xy: torch.Tensor) -> None:
+        if self.carrying is not None:
+            self.carrying[ids] = False
 
     def mid_task_start(self, obj_rest, obj_half, target, gen) -> MidTaskStart:
         """One of three starts, drawn per episode: (`APPROACH_SHARE`) standing some way from the

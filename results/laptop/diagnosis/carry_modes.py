@@ -1,0 +1,50 @@
+"""Does a Carry policy fail under mean actions where its sampled actions succeed? Runs the
+evaluation (default starts, the run's evaluation settings) of each checkpoint twice, with mean
+and with sampled actions, and prints per mode the Carry success, the shares delivered / grasped
+only, and the grasp action's mean while both hands are within 0.12 m of the box (where a grasp
+request is granted) and not yet holding it.
+
+    python results/laptop/diagnosis/carry_modes.py RUN_DIR TRIALS CHECKPOINT.pt [CHECKPOINT.pt ...]
+"""
+import sys
+from pathlib import Path
+
+import torch
+
+from detach.envs.lh_env import make_env
+from detach.eval.episodes import run_evaluation
+from detach.runs.folder import RunFolder
+from detach.runs.policy import load_policy
+from detach.runs.session import eval_config
+from detach.skills.carry import HAND_IDS, box_lifted
+from detach.torch_math import point_box_distance
+from detach.train.setup import seed_everything
+
+run = RunFolder(Path(sys.argv[1]))
+trials = int(sys.argv[2])
+cfg = eval_config(run.config(), None)
+for name in sys.argv[3:]:
+    for mode in ("mean", "sampled"):
+        seed_everything(1)
+        env = make_env(cfg, num_envs=cfg.eval.num_envs, device="cpu", eval_mode=True)
+        actor, _ = load_policy(cfg, env, Path(name))
+        near_grasp: list[torch.Tensor] = []
+
+        def policy(obs, actor=actor, env=env, mode=mode, near_grasp=near_grasp):
+            a = actor(obs, stochastic_output=mode == "sampled")
+            ctx = env.context()
+            hands = ctx.state.body_pos[:, HAND_IDS]
+            d = point_box_distance(hands, ctx.obj_pos[:, None], ctx.obj_quat[:, None], ctx.obj_half[:, None])
+            near = (d < 0.12).all(-1) & ~box_lifted(ctx)
+            near_grasp.append(a[near, -1])
+            return a
+
+        res = run_evaluation(env, policy, trials, cfg, progress=False)
+        scores = torch.tensor([t[0] for t in res.trial_scores])
+        g = torch.cat(near_grasp) if near_grasp else torch.zeros(0)
+        sub = res.subtasks[0]
+        print(f"{Path(name).name} {mode}: carry {sub.rate:.2f} [{sub.ci[0]:.2f}, {sub.ci[1]:.2f}] "
+              f"delivered {(scores == 1).float().mean().item():.2f} grasped only "
+              f"{(scores == 0.5).float().mean().item():.2f}", flush=True)
+        print(f"  grasp action near the box: n={len(g)} mean={g.mean().item() if len(g) else float('nan'):+.3f} "
+              f"share>0={(g > 0).float().mean().item() if len(g) else float('nan'):.2f}", flush=True)
