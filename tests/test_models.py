@@ -479,7 +479,25 @@ def test_zeroed_input_weights_make_a_model_ignore_unseen_inputs_and_still_learn_
         with torch.no_grad():
             torch.testing.assert_close(model(changed(unseen)), model(obs))
             assert not torch.allclose(model(changed(some)), model(obs))
-        weights = [w for w, _cols in model.input_weights()]
+        weights = [w for w, _cols in model.input_weights() if isinstance(w, torch.nn.Parameter)]
         assert weights and all(w.requires_grad for w in weights)
         model(changed(unseen)).pow(2).sum().backward()
         assert any(float(w.grad.abs().sum()) > 0 for w in weights if w.grad is not None)
+
+
+def test_zeroing_unseen_input_weights_leaves_detachs_preserved_encoders_where_they_were() -> None:
+    """R1/R2 pull the encoders toward θ* (their weights at the end of pre-training). Zeroing
+    the columns of unseen inputs in the weights but not in θ* made R1 about 20 from the first
+    Carry iteration, and its pull slowly restored the random weights on Follow's unseen inputs."""
+    from detach.train.setup import zero_unseen_input_weights
+
+    actor, _critic, obs = build("detach")
+    actor.snapshot_encoders()
+    before = {k: float(v) for k, v in actor.aux_losses(obs).items() if k in ("R1", "R2")}
+    assert before == {"R1": 0.0, "R2": 0.0}
+    unseen = torch.zeros(sum(actor.layout.dims), dtype=torch.bool)
+    for g in ("env", "self"):
+        unseen[actor.layout.columns(g)[:3].reshape(-1)] = True
+    assert zero_unseen_input_weights(actor, unseen) > 0
+    after = actor.aux_losses(obs)
+    assert float(after["R1"]) == 0.0 and float(after["R2"]) == 0.0

@@ -70,6 +70,10 @@ class ParamAnchor(nn.Module):
     def anchors(self) -> list[torch.Tensor]:
         return [getattr(self, k) for k in self._keys]
 
+    def copy_of(self, name: str) -> torch.Tensor:
+        """θ* of the encoder's parameter `name` (as `named_parameters` names it)."""
+        return getattr(self, name.replace(".", "__"))
+
     @torch.no_grad()
     def store(self, module: nn.Module) -> None:
         for a, p in zip(self.anchors(), module.parameters(), strict=True):
@@ -130,7 +134,7 @@ class DetachTrunk(nn.Module):
     # ----- input layers (`train.init_normalizers: merge`) -----
     def input_weights(self) -> list[tuple[torch.Tensor, torch.Tensor]]:
         """(weight [out, in], its input columns [in, F] in the layout) of every layer that
-        reads the normalised groups directly."""
+        reads the normalised groups directly, then the encoders' stored copies of theirs."""
         lay = self.layout
         env = self.env_encoder.embed[0].weight if self.env_encoder else self.proj_env.weight
         if self.self_encoder:
@@ -141,6 +145,20 @@ class DetachTrunk(nn.Module):
         out = [(env, lay.columns("env")), (self.task_token.weight, lay.columns("task"))]
         out += [(w, lay.columns("self")) for w in own]
         out += [(self.extra_tokens[g].weight, lay.columns(g)) for g in lay.extra_groups]
+        return out + self._anchored_input_weights()
+
+    def _anchored_input_weights(self) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """θ* (R1/R2's copies) of the encoders' input weights, with the same columns: what
+        changes those weights (`train.init_normalizers: merge` zeroes the columns of inputs
+        the source never saw vary) changes their copies too, or R1/R2 would pull the weights
+        back to what was changed (R1 was 20 from the first Carry iteration, pulling the
+        zeroed random weights on Follow's unseen box and height-map inputs back)."""
+        out = []
+        if self.env_encoder:
+            out.append((self.env_anchor.copy_of("embed.0.weight"), self.layout.columns("env")))
+        if self.self_encoder:
+            names = [n for n, _ in self.self_encoder.named_parameters() if n.startswith("gru.weight_ih_l0")]
+            out += [(self.self_anchor.copy_of(n), self.layout.columns("self")) for n in names]
         return out
 
     def output_columns(self) -> torch.Tensor:

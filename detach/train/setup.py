@@ -284,7 +284,8 @@ def merge_normalizers(*modules: torch.nn.Module) -> tuple[int, int]:
 
 def zero_unseen_input_weights(module: torch.nn.Module, unseen: torch.Tensor) -> int:
     """Zero the columns of `module.input_weights()` whose inputs are all in `unseen` [D] (the
-    normaliser's output columns); returns how many columns were zeroed."""
+    normaliser's output columns), in the parameters and in any stored copy of them (DETACH's
+    θ*); returns how many parameter columns were zeroed."""
     zeroed = 0
     with torch.no_grad():
         for weight, cols in module.input_weights():
@@ -292,7 +293,7 @@ def zero_unseen_input_weights(module: torch.nn.Module, unseen: torch.Tensor) -> 
             read = cols >= 0
             idle = torch.where(read, unseen[cols.clamp(min=0)], torch.ones_like(read)).all(-1) & read.any(-1)
             weight[:, idle.to(weight.device)] = 0.0
-            zeroed += int(idle.sum())
+            zeroed += int(idle.sum()) if isinstance(weight, torch.nn.Parameter) else 0
     return zeroed
 
 

@@ -5,7 +5,10 @@ only, and the grasp action's mean while both hands are within 0.12 m of the box 
 request is granted) and not yet holding it.
 
     python results/laptop/diagnosis/carry_modes.py RUN_DIR TRIALS CHECKPOINT.pt [CHECKPOINT.pt ...]
+
+MODES=mean (environment variable) runs only the mean-action evaluation.
 """
+import os
 import sys
 from pathlib import Path
 
@@ -24,7 +27,7 @@ run = RunFolder(Path(sys.argv[1]))
 trials = int(sys.argv[2])
 cfg = eval_config(run.config(), None)
 for name in sys.argv[3:]:
-    for mode in ("mean", "sampled"):
+    for mode in os.environ.get("MODES", "mean,sampled").split(","):
         seed_everything(1)
         env = make_env(cfg, num_envs=cfg.eval.num_envs, device="cpu", eval_mode=True)
         actor, _ = load_policy(cfg, env, Path(name))
