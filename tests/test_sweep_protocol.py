@@ -123,6 +123,10 @@ def test_sweeps_share_the_cells_of_a_common_stage(tmp_path: Path) -> None:
     assert all("env.subtask_start_prob=0.5" in c.overrides for c in lh1)  # composition only
     assert not any("subtask_start_prob" in o for c in cells(laptop, ROOT / "configs/sweeps/table1.yaml")
                    for o in c.overrides)
+    # a stage started from another run weighs the value loss 0.1 (a shared trunk's policy moved
+    # with the new task's large value loss); the stage trained from scratch keeps rsl-rl's 1
+    for c in cells(laptop, ROOT / "configs/sweeps/table1.yaml"):
+        assert ("train.value_loss_coef=0.1" in c.overrides) == (c.stage != "follow"), c.key
 
 
 def test_a_second_process_on_the_same_sweep_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

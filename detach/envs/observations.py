@@ -11,7 +11,7 @@ Groups and their frame layouts (sizes for the 15-body, 32-DoF character):
   of the 15 bodies as tangent/normal 6-D (90), linear (45) and angular (45) velocities of the
   15 bodies, hinge positions (32) and velocities (32). Proprioception only.
 - `env` (681 per frame): the place to make for now (`Skill.goal`: the subtask's target, but
-  Carry's box until it is lifted) relative to the root (3); `env.trajectory.num_samples`
+  Carry's box until it is carried) relative to the root (3); `env.trajectory.num_samples`
   (10) path points `sample_dt` (0.5 s) apart, XY relative to the root (20; the target's XY
   repeated outside subtasks that follow a path); the subtask's object: position relative to
   the root (3), rotation 6-D (6), its 8 bounding-box corners relative to the root (24), zeros

@@ -150,7 +150,10 @@ class Skill:
     def goal(self, ctx: "SkillContext") -> torch.Tensor:
         """The world point [N, 3] the character makes for now, shown to the policy as the
         current target (ctx.target filled; default: the target). A skill whose task passes
-        through another place first (Carry: the box) shows that place until it is reached."""
+        through another place first (Carry: the box) shows that place until it is reached.
+        Called for every env at each step's context (values of envs on other skills are
+        ignored), possibly more than once per step: state kept here must be idempotent per
+        step and reset in `start`."""
         return ctx.target
 
     def distance(self, ctx: "SkillContext") -> torch.Tensor:
