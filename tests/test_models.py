@@ -493,11 +493,11 @@ def test_zeroing_unseen_input_weights_leaves_detachs_preserved_encoders_where_th
 
     actor, _critic, obs = build("detach")
     actor.snapshot_encoders()
-    before = {k: float(v) for k, v in actor.aux_losses(obs).items() if k in ("R1", "R2")}
+    before = {k: float(v.detach()) for k, v in actor.aux_losses(obs).items() if k in ("R1", "R2")}
     assert before == {"R1": 0.0, "R2": 0.0}
     unseen = torch.zeros(sum(actor.layout.dims), dtype=torch.bool)
     for g in ("env", "self"):
         unseen[actor.layout.columns(g)[:3].reshape(-1)] = True
     assert zero_unseen_input_weights(actor, unseen) > 0
     after = actor.aux_losses(obs)
-    assert float(after["R1"]) == 0.0 and float(after["R2"]) == 0.0
+    assert float(after["R1"].detach()) == 0.0 and float(after["R2"].detach()) == 0.0
