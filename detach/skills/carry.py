@@ -49,13 +49,17 @@ def box_lifted(ctx: SkillContext) -> torch.Tensor:
     return ctx.obj_pos[:, 2] >= ctx.obj_rest_z + GRASP_LIFT
 
 
+def box_at_destination(ctx: SkillContext) -> torch.Tensor:
+    """[N] bool: the subtask's box is within `NEAR` (XY) of its destination."""
+    return (ctx.obj_pos[:, :2] - ctx.target[:, :2]).norm(dim=-1) < NEAR
+
+
 def walk_to_box(ctx: SkillContext) -> torch.Tensor:
     """Walk to the box; 1 once the box is lifted or at the destination (each later stage of
     the task pays the earlier stages' terms in full: a box held in front of the pelvis is
     more than `NEAR` away from it)."""
     r = approach(ctx, ctx.obj_pos)
-    delivered = (ctx.obj_pos[:, :2] - ctx.target[:, :2]).norm(dim=-1) < NEAR
-    return torch.where(delivered | box_lifted(ctx), torch.ones_like(r), r)
+    return torch.where(box_at_destination(ctx) | box_lifted(ctx), torch.ones_like(r), r)
 
 
 HAND_IDS = [BODY_NAMES.index(h) for h in HANDS]
@@ -161,9 +165,7 @@ class Carry(Skill):
         if self.carry_goal is None or len(self.carry_goal) != n:
             self.carry_goal = torch.zeros(n, 2, device=self.device)
             self.carrying = torch.zeros(n, dtype=torch.bool, device=self.device)
-        near = (ctx.obj_pos[:, :2] - ctx.target[:, :2]).norm(dim=-1) < NEAR
-        slot = self.dyn_slot[ctx.obj.clamp(min=0)]
-        carrying = box_lifted(ctx) | near | ((ctx.held == slot) & (slot >= 0))
+        carrying = box_lifted(ctx) | box_at_destination(ctx) | self.held(ctx)
         reach = (ctx.state.root_pos[:, :2] - ctx.obj_pos[:, :2]).norm(dim=-1, keepdim=True)
         back = ctx.obj_pos[:, :2] - ctx.target[:, :2]
         back = back / back.norm(dim=-1, keepdim=True).clamp(min=1e-6)
@@ -172,6 +174,11 @@ class Carry(Skill):
         self.carrying = carrying
         goal = torch.cat((self.carry_goal, ctx.target[:, 2:]), -1)
         return torch.where(carrying[:, None], goal, ctx.obj_pos)
+
+    def held(self, ctx: SkillContext) -> torch.Tensor:
+        """[N] bool: the character holds the subtask's box by its grasp constraint."""
+        slot = self.dyn_slot[ctx.obj.clamp(min=0)]
+        return (ctx.held == slot) & (slot >= 0)
 
     def start(self, ids: torch.Tensor, subtask: torch.Tensor, root_xy: torch.Tensor) -> None:
         if self.carrying is not None:
@@ -238,8 +245,7 @@ class Carry(Skill):
         n, dev = ctx.num_envs, self.device
         box, bq, half, target = ctx.obj_pos, ctx.obj_quat, ctx.obj_half, ctx.target
         pxy, yaw = ctx.state.root_pos[:, :2], cmd.yaw
-        slot = self.dyn_slot[ctx.obj.clamp(min=0)]
-        held = (ctx.held == slot) & (slot >= 0)
+        held = self.held(ctx)
         # the box face whose outward normal points away from the destination
         away = box[:, :2] - target[:, :2]
         axes = torch.stack((quat_rotate(bq, torch.tensor([1.0, 0, 0], device=dev).expand(n, 3)),
