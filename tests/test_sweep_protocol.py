@@ -119,7 +119,7 @@ def test_sweeps_share_the_cells_of_a_common_stage(tmp_path: Path) -> None:
     lh1 = [c for c in comp_cells.values() if c.stage == "lh1"]
     assert {c.model for c in lh1} == {"cml_incremental", "tokenhsi_adapt", "detach"}
     assert not {c.key for c in lh1} & keys_laptop
-    assert all("train.max_iterations=300" in c.overrides for c in lh1)
+    assert all("train.max_iterations=75" in c.overrides and "sim.num_envs=256" in c.overrides for c in lh1)
     assert all("env.subtask_start_prob=0.5" in c.overrides for c in lh1)  # composition only
     assert not any("subtask_start_prob" in o for c in cells(laptop, ROOT / "configs/sweeps/table1.yaml")
                    for o in c.overrides)
