@@ -70,7 +70,8 @@ def bench_builds() -> None:
             proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
             dt = time.perf_counter() - t0
             summary = " | ".join(line for line in proc.stdout.splitlines() if line.startswith(("built", "ray")))
-            print(f"LH assets {label} build (fresh process, --jobs {os.cpu_count()}): {dt:6.2f} s  [{summary}] rc={proc.returncode}")
+            print(f"LH assets {label} build (fresh process, --jobs {os.cpu_count()}): {dt:6.2f} s  "
+                  f"[{summary}] rc={proc.returncode}")
 
 
 def cad_table(faces: int) -> trimesh.Trimesh:

@@ -163,7 +163,8 @@ def _clashes(planned: dict[int, Planned], out: Path, force: bool) -> dict[int, s
         if len(sources) > 1 or len(requests) > 1:
             for i in members:
                 others = sorted({planned[j].label for j in members if planned[j].label != planned[i].label})
-                errors[i] = (f"{planned[i].label}: asset id {planned[i].request.category}/{planned[i].request.model_id} "
+                request = planned[i].request
+                errors[i] = (f"{planned[i].label}: asset id {request.category}/{request.model_id} "
                              f"is also claimed by {', '.join(others) or 'a differently-built copy'} in this batch; "
                              "give one of them another id (--name CATEGORY/MODEL_ID, or separate runs with "
                              "different --out)")

@@ -16,9 +16,11 @@ PAPER = {"follow": 0.1, "carry": 0.3, "climb": 0.3, "sit": 0.3}
 def test_draw_weights_keep_the_plan_and_renormalise() -> None:
     every = ["follow", "carry", "climb", "sit"]
     assert skill_draw_weights(every, every, PAPER) == pytest.approx(PAPER)
-    assert skill_draw_weights(["follow", "carry", "follow"], every, PAPER) == pytest.approx({"follow": 0.25, "carry": 0.75})
+    assert skill_draw_weights(["follow", "carry", "follow"], every, PAPER) == pytest.approx(
+        {"follow": 0.25, "carry": 0.75})
     assert skill_draw_weights(["sit"], every, {}) == {"sit": 1.0}
-    assert skill_draw_weights(["follow", "reach"], [*every, "reach"], PAPER) == pytest.approx({"follow": 0.1 / 0.35, "reach": 0.25 / 0.35})
+    assert skill_draw_weights(["follow", "reach"], [*every, "reach"], PAPER) == pytest.approx(
+        {"follow": 0.1 / 0.35, "reach": 0.25 / 0.35})
     assert skill_draw_weights(["reach"], every, {}) == pytest.approx({s: 0.25 for s in every})  # no clips of its own
     with pytest.raises(ValueError, match="weight 0"):
         skill_draw_weights(["follow"], every, {"follow": 0.0})

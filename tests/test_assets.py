@@ -9,7 +9,8 @@ import trimesh
 
 from detach.config_schema import SceneObjectCfg, TaskCfg
 from scene_builder import procedural
-from scene_builder.assets import AssetError, AssetInfo, default_assets_root, ensure_assets, load_asset, requests_from_task
+from scene_builder.assets import (AssetError, AssetInfo, default_assets_root, ensure_assets, load_asset,
+                                  requests_from_task)
 from scene_builder.heightmap import embree_available, height_map
 from scene_builder.normalize import normalize
 
@@ -86,7 +87,8 @@ def test_height_map_row_zero_is_plus_y(engine):
     slab = m3.Manifold.cube((1.0, 1.0, 0.1))
     block = m3.Manifold.cube((1.0, 0.25, 0.5)).translate((0.0, 0.75, 0.0))
     mesh = (slab + block).to_mesh64()
-    h, _ = height_map(trimesh.Trimesh(np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts)), engine=engine)
+    tri = trimesh.Trimesh(np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts))
+    h, _ = height_map(tri, engine=engine)
     assert np.allclose(h[:32], 0.5) and np.allclose(h[32:], 0.1)
 
 
@@ -156,7 +158,8 @@ def test_default_assets_root_honours_environment(monkeypatch, tmp_path):
 
 
 def test_ensure_assets_builds_missing_then_reuses(tmp_path):
-    task = TaskCfg(name="t", scene=(obj("b0", "Box", "box_a", size=(0.6, 0.4, 0.2)), obj("b1", "Box", "box_a", size=(0.6, 0.4, 0.2)),
+    size = (0.6, 0.4, 0.2)
+    task = TaskCfg(name="t", scene=(obj("b0", "Box", "box_a", size=size), obj("b1", "Box", "box_a", size=size),
                                     obj("cushion", "cushion", "cushion_v1", variant=1)))
     infos = ensure_assets(task, tmp_path, jobs=1)
     assert set(infos) == {0, 1, 2} and infos[0] is infos[1]
@@ -186,7 +189,8 @@ def test_default_options_keep_the_cache_keys_of_existing_procedural_assets():
     stamp: the assets built before them stay current (no rebuild of ./assets for everyone)."""
     from scene_builder.pipeline import AssetRequest, BuildOptions, plan
 
-    assert BuildOptions().key_options() == {"coacd_threshold": 0.05, "max_hulls": 16, "max_hull_vertices": 64, "seed": 0}
+    assert BuildOptions().key_options() == {"coacd_threshold": 0.05, "max_hulls": 16, "max_hull_vertices": 64,
+                                            "seed": 0}
     assert BuildOptions(time_budget=30.0, grid="linspace").key_options()["grid"] == "linspace"
     planned = plan(AssetRequest("chair", "chair_v0"), BuildOptions())
     assert planned.options == {"variant": 0, "up": "y", "yaw": 0.0, "scale": None, "size": None,

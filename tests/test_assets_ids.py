@@ -116,7 +116,8 @@ def test_task_objects_keep_their_ids_and_a_changed_variant_is_a_clash(tmp_path, 
     """Procedural assets keep <category>/<model_id>; another variant under the same id is refused."""
     task = tmp_path / "t.yaml"
     task.write_text("name: t\nplan: [sit]\ntarget_object: [0]\nsample_target_from: [scene_0]\nscene:\n"
-                    f"  - {{name: c, category: cushion, model_id: cushion_a, pos3d: [0, 0, 0.1], variant: {variant}}}\n")
+                    "  - {name: c, category: cushion, model_id: cushion_a, pos3d: [0, 0, 0.1], "
+                    f"variant: {variant}}}\n")
     out = tmp_path / "o"
     assert main(["build", "--tasks", str(task), "--out", str(out), "--jobs", "1"]) == 0
     assert source_of(out / "cushion" / "cushion_a") == f"procedural:cushion:{variant}"

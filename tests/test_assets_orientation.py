@@ -108,6 +108,7 @@ def test_upside_down_and_wrong_axis_furniture_is_detected(category):
 
 def test_a_wedge_balancing_on_its_edge_is_unstable():
     """The flipped ramp stands on a line: its score is the unstable one, whatever its flat top."""
-    ramp = solid(m3.Manifold.hull_points([(x, y, z) for x in (-0.5, 0.5) for (y, z) in ((0.5, 0), (-0.5, 0), (-0.5, 0.4))]))
+    profile = ((0.5, 0), (-0.5, 0), (-0.5, 0.4))
+    ramp = solid(m3.Manifold.hull_points([(x, y, z) for x in (-0.5, 0.5) for (y, z) in profile]))
     result = assess(upside_down(ramp), "z", False, "ramp", engine="numpy")
     assert not result.evidence["z"].stable and result.evidence["z+flip"].stable

@@ -31,9 +31,11 @@ def test_presets_merge_in_order_and_overrides_win(capsys: pytest.CaptureFixture[
     t, m = cfg["train"], cfg["model"]
     assert (t["learning_rate"], t["schedule"], t["gamma"], t["lam"]) == (2e-5, "fixed", 0.99, 0.95)
     assert (t["num_steps_per_env"], t["num_learning_epochs"], t["num_mini_batches"]) == (32, 6, 8)
-    assert (t["clip_param"], t["value_loss_coef"], t["max_grad_norm"], t["clipped_value_loss"]) == (0.2, 5.0, 1.0, False)
+    assert (t["clip_param"], t["value_loss_coef"], t["max_grad_norm"], t["clipped_value_loss"]) == (
+        0.2, 5.0, 1.0, False)
     assert math.isclose(math.log(m["init_noise_std"]), -2.9, abs_tol=1e-5) and m["learn_noise_std"] is False
-    assert (t["amp"]["task_reward_weight"], t["amp"]["style_reward_weight"], t["amp"]["objective"]) == (0.5, 1.0, "logistic")
+    amp = t["amp"]
+    assert (amp["task_reward_weight"], amp["style_reward_weight"], amp["objective"]) == (0.5, 1.0, "logistic")
     assert cfg["sim"]["num_envs"] == 4096 and cfg["eval"]["trials"] == 100
     assert t["max_iterations"] == 7, "command-line overrides come after presets"
     assert (t["num_mini_batches"] * 16384) == cfg["sim"]["num_envs"] * t["num_steps_per_env"]

@@ -162,3 +162,32 @@ def test_a_table_out_that_is_a_file_is_one_line_before_anything_is_printed(
         assert captured.err.strip().splitlines() == [
             f"detach-run: error: {out}: --out: expected a folder, found a file ({blocker})"]
     assert blocker.read_text() == "not a folder"
+
+
+def _lh1_eval(rate: float, trials: int = 10) -> dict[str, Any]:
+    """A minimal eval.json of LH1 (every subtask at `rate`)."""
+    plan = ["follow", "carry", "climb", "sit"]
+    return {"task": "lh1", "trained_on": "lh1", "model": "mlp", "seed": 0, "trials": trials, "plan": plan,
+            "subtasks": [{"index": i, "skill": s, "rate": rate, "ci": [0.0, 1.0], "n": trials}
+                         for i, s in enumerate(plan)],
+            "lh_success": {"rate": rate, "ci": [0.0, 1.0], "n": trials}, "sgr": 0.0}
+
+
+def test_a_sweep_table_reads_only_the_evaluations_the_sweep_asks_of_each_cell(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A phase-A cell evaluated by hand on LH1 (a diagnosis: the Follow policy tried on LH1)
+    must not pool into the LH1 column of the sweep's table, which is the LH1 cell's."""
+    from detach.runs.sweep import cells, load_sweep
+    from tests.test_sweep_protocol import write_sweep
+
+    sweep = write_sweep(tmp_path)
+    keys = {c.stage: c.key for c in cells(load_sweep(sweep, preset="tiny"), sweep)}
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    follow = _run(runs, _eval(1.0), keys["follow"])
+    (follow.path / "eval_lh1.json").write_text(json.dumps(_lh1_eval(0.0)))
+    _run(runs, _lh1_eval(1.0), keys["lh1"])
+    assert cli.main(["table", str(sweep), "--runs", str(runs), "--preset", "tiny", "--out", str(tmp_path / "t")]) == 0
+    assert "1 evaluation(s) on a task the sweep does not evaluate their cell on left out" in capsys.readouterr().err
+    csv = (tmp_path / "t" / "mini.csv").read_text().splitlines()
+    assert csv[1].split(",")[1:] == ["1.0", "1.0", "1.0", "1.0", "1.0", "1.0", "10 (1 seed)"], csv

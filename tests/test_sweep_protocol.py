@@ -137,7 +137,8 @@ def test_a_second_process_on_the_same_sweep_is_refused(tmp_path: Path, capsys: p
         import time
         from pathlib import Path
         from detach.runs.sweep import _lock_path, file_lock
-        with file_lock(_lock_path(Path({str(out)!r}), "sweep:{sweep.resolve()}:{sweep_cfg.preset}:{sweep_cfg.models}")) as held:
+        key = "sweep:{sweep.resolve()}:{sweep_cfg.preset}:{sweep_cfg.models}"
+        with file_lock(_lock_path(Path({str(out)!r}), key)) as held:
             print(held, flush=True)
             time.sleep(30)
         """)], stdout=subprocess.PIPE, text=True)
@@ -175,7 +176,9 @@ def test_bad_sweeps_are_one_line_errors(tmp_path: Path, capsys: pytest.CaptureFi
     sweep = write_sweep(tmp_path, extra="  loop: {extends: loop}\n")
     assert cli.main(["--sweep", str(sweep), "--preset", "loop", "--out", str(tmp_path / "runs")]) == 2
     err = capsys.readouterr().err
-    assert "mini.yaml" in err and "presets.loop.extends: expected another preset of this sweep (laptop, laptop_composition, quick, tiny), found 'loop'" in err
+    assert "mini.yaml" in err
+    assert ("presets.loop.extends: expected another preset of this sweep (laptop, laptop_composition, quick, tiny), "
+            "found 'loop'") in err
 
 
 def test_init_from_refuses_another_architecture_naming_both_models(tmp_path: Path,

@@ -187,7 +187,8 @@ def test_a_checkpoint_from_another_schedule_is_refused(tmp_path: Path) -> None:
 
     _runner(tmp_path, [("pretrain", 1), ("fusion", 2), ("joint", 1)]).learn(2)  # it 1 in fusion
     rescaled = _runner(tmp_path, [("pretrain", 2), ("fusion", 2), ("joint", 4)])
-    with pytest.raises(CheckpointError, match="iteration 1 was trained in stage 'fusion', but this run's schedule puts it in 'pretrain'"):
+    with pytest.raises(CheckpointError, match="iteration 1 was trained in stage 'fusion', but this run's schedule "
+                                              "puts it in 'pretrain'"):
         rescaled.load_checkpoint(tmp_path / "model_1.pt")
 
 

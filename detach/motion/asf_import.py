@@ -214,7 +214,8 @@ def read_asf(path: str | os.PathLike) -> Skeleton:
     unused = sorted(set(bones) - {b.name for b in ordered})
     if unused:
         raise AsfError(f"{path}: bone(s) not in :hierarchy: {', '.join(unused)}")
-    if not {"tx", "ty", "tz"} <= set(root_order) or any(o not in ("tx", "ty", "tz", "rx", "ry", "rz") for o in root_order):
+    axes = ("tx", "ty", "tz", "rx", "ry", "rz")
+    if not {"tx", "ty", "tz"} <= set(root_order) or any(o not in axes for o in root_order):
         raise AsfError(f"{path}: root order {' '.join(root_order)!r}: expected TX TY TZ and rotations")
     return Skeleton(str(path), ordered, parents, root_order, unit, degrees)
 

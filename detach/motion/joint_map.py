@@ -109,7 +109,8 @@ def load_map(name_or_path: str | os.PathLike) -> JointMap:
             raise RetargetError(f"{p}: joints.{ours}: not a joint of the humanoid; expected one of {', '.join(GROUPS)}")
         if isinstance(value, dict):
             if not set(value) <= {"bvh", "aim"} or "bvh" not in value:
-                raise RetargetError(f"{p}: joints.{ours}: expected a joint name, a list of names or {{bvh: NAME, aim: NAME}}")
+                raise RetargetError(f"{p}: joints.{ours}: expected a joint name, a list of names or "
+                                    f"{{bvh: NAME, aim: NAME}}")
             aim = _names(value["aim"], p, f"joints.{ours}.aim") if value.get("aim") is not None else ()
             if aim and len(child_bodies(GROUPS[ours].body)) != 1:
                 raise RetargetError(f"{p}: joints.{ours}.aim: {GROUPS[ours].body} has no single child body to aim at")
@@ -212,7 +213,8 @@ def choose_map(file_names: Sequence[str], where: str) -> BoundMap:
         fits.append((-detect_score(jmap, file_names), name, bound))
     if not fits:
         raise RetargetError(f"{where}: no shipped joint map fits this skeleton ({'; '.join(misses)}); file joints: "
-                            f"{', '.join(file_names)}; write a map for it (format: {MAP_FORMAT_DOC}) and pass --map FILE.yaml")
+                            f"{', '.join(file_names)}; write a map for it (format: {MAP_FORMAT_DOC}) and pass "
+                            "--map FILE.yaml")
     return min(fits, key=lambda t: (t[0], t[1]))[2]
 
 

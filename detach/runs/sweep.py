@@ -207,11 +207,13 @@ def cells(sweep: SweepCfg, sweep_path: Path) -> list[Cell]:
     return list(out.values())
 
 
-def cell_keys(sweep_path: Path, preset: str | None = None) -> set[str]:
-    """Keys of the sweep's cells under `preset` (None = its default settings): what a table of
-    that sweep reads, so runs of another preset or reading never pool into it."""
+def cell_evaluations(sweep_path: Path, preset: str | None = None) -> dict[str, frozenset[str]]:
+    """Key of each of the sweep's cells under `preset` (None = its default settings) -> the
+    tasks the sweep evaluates it on: what a table of that sweep reads, so neither runs of
+    another preset or reading nor evaluations made by hand on other tasks (a phase-A policy
+    tried on LH1) pool into it."""
     sweep = load_sweep(sweep_path, preset=preset)
-    return {c.key for c in cells(sweep, sweep_path)}
+    return {c.key: frozenset(t.stem for t in c.evals) for c in cells(sweep, sweep_path)}
 
 
 def existing_runs(out: Path) -> dict[str, RunFolder]:
@@ -626,4 +628,4 @@ def _complete(cell: Cell, run: RunFolder | None) -> bool:
     return state == "finished" and not _missing_evals(cell, run)
 
 
-__all__ = ["Cell", "SweepCfg", "cell_keys", "cell_commands", "cells", "load_sweep", "run_sweep"]
+__all__ = ["Cell", "SweepCfg", "cell_evaluations", "cell_commands", "cells", "load_sweep", "run_sweep"]

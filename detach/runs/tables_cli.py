@@ -1,6 +1,8 @@
 """`detach-run table`: the paper's tables from the eval*.json files of runs or a sweep.
 
-Two guards keep a table honest:
+Three guards keep a table honest:
+- a sweep's table reads the evaluations its `eval:` asks of each cell, no others: a phase-A
+  cell evaluated by hand on LH1 must not pool into the LH1 column;
 - one evaluation per sweep cell and evaluated task, the newest: a cell trained twice (two
   sweeps over one file, a re-run) must not count its trials twice, which would double n and
   shrink the intervals;
@@ -14,7 +16,7 @@ import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Collection, Mapping
 
 from detach.config import ConfigError
 from detach.eval.tables import TABLES, render
@@ -35,12 +37,13 @@ class _Found:
     written: float
 
 
-def collect_evals(runs: list[RunFolder], cells: set[str] | None = None,
+def collect_evals(runs: list[RunFolder], cells: Mapping[str, Collection[str]] | None = None,
                   report: Report = _stderr) -> list[EvalResult]:
-    """Every usable eval*.json of the given runs (restricted to sweep cells when given); of a
-    sweep cell evaluated more than once on a task, only the newest evaluation."""
+    """Every usable eval*.json of the given runs (when `cells` is given: of those sweep cells,
+    on the tasks it names for each); of a sweep cell evaluated more than once on a task, only
+    the newest evaluation."""
     found: dict[tuple[str, ...], _Found] = {}
-    duplicates = 0
+    duplicates = unasked = 0
     for run in runs:
         try:
             cell = run.status().cell
@@ -55,6 +58,9 @@ def collect_evals(runs: list[RunFolder], cells: set[str] | None = None,
             except (OSError, ValueError) as exc:
                 report(f"skipped {path}: {exc}")
                 continue
+            if cells is not None and cell is not None and result.task not in cells[cell]:
+                unasked += 1
+                continue
             key = ("cell", cell, result.task) if cell else ("file", str(path))
             previous = found.get(key)
             if previous is not None:
@@ -62,6 +68,9 @@ def collect_evals(runs: list[RunFolder], cells: set[str] | None = None,
                 if (previous.written, str(previous.path)) > (written, str(path)):
                     continue
             found[key] = _Found(result, path, written)
+    if unasked:
+        report(f"{unasked} evaluation(s) on a task the sweep does not evaluate their cell on left out "
+               f"(a sweep's table reads the evaluations its `eval:` asks for)")
     if duplicates:
         report(f"{duplicates} older evaluation(s) of a sweep cell left out (a cell counts once: its newest "
                f"evaluation per task)")
@@ -79,10 +88,10 @@ def print_table(source: Path, runs_dir: Path, kind: str | None, out: Path | None
         out = out or source / "tables"
         curves = None
     else:
-        from detach.runs.sweep import cell_keys, existing_runs, load_sweep
+        from detach.runs.sweep import cell_evaluations, existing_runs, load_sweep
 
         sweep = load_sweep(source, preset=preset)
-        cells = cell_keys(source, preset)
+        cells = cell_evaluations(source, preset)
         evals = collect_evals(find_runs(runs_dir), cells)
         kinds, name = [kind or sweep.table], sweep.name
         out = out or runs_dir / "tables"

@@ -42,8 +42,8 @@ from tqdm import tqdm
 from detach.run_contract import PROVENANCE_FILE, checkpoint_file, replay_file
 from detach.train.amp_ppo import REPLAY_KEY
 from detach.train.checkpoints import (
-    CheckpointError, capture_rng, check_model, describe_mismatch, first_line, prune_checkpoints, read_checkpoint, read_sidecar,
-    replay_path, restore_rng, write_checkpoint,
+    CheckpointError, capture_rng, check_model, describe_mismatch, first_line, prune_checkpoints, read_checkpoint,
+    read_sidecar, replay_path, restore_rng, write_checkpoint,
 )
 from detach.train.schedule import stage_at
 

@@ -2,9 +2,9 @@
 forward action of a policy checkpoint in the Carry scene (16 envs, mean actions, 5 s), with its
 observation statistics: `keep` (the checkpoint's own: inputs the source never varied are divided
 by rsl-rl's eps), `merge0` (`train.init_normalizers: merge` before any update: those inputs read
-as the constant the policy knew) and `merge1` (after one rollout's update: Carry's statistics). Since commit 29dacc3 `merge` also
-zeroes the weights that read those inputs; before it, `merge1` read them with their random
-initial weights.
+as the constant the policy knew) and `merge1` (after one rollout's update: Carry's statistics).
+Since commit 29dacc3 `merge` also zeroes the weights that read those inputs; before it, `merge1`
+read them with their random initial weights.
 
     python results/laptop/diagnosis/unseen_probe.py CARRY_RUN_DIR FOLLOW_CHECKPOINT.pt
 """
