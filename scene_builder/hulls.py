@@ -12,9 +12,9 @@ threshold t, 2t, 4t, ... up to `MAX_THRESHOLD` (0.05, 0.1, 0.2, 0.5) and, for in
 CoACD's manifold remeshing (not watertight), a coarser remeshing (resolution 50 down to 20: on
 real CAD the remeshing, not the threshold, is most of the time); a quarter of the budget is
 kept for the last try, and each earlier try gets half of the rest that is left. When every try
-runs out of time, the fallback is bounded by construction:
-the convex hulls of the mesh's connected parts, or of `max_hulls` spatial clusters of its
-faces (k-means), merged down to `max_hulls`. What happened is returned as a `HullReport`
+runs out of time, the fallback is bounded by construction: the convex hulls of the mesh's
+connected parts, or of `max_hulls` spatial clusters of its faces (k-means), merged down to
+`max_hulls`. What happened is returned as a `HullReport`
 (config.json "collision") and, when it is not plain CoACD at the requested threshold, as a
 warning. The input is decimated to `hull_faces` first, so memory follows that cap.
 """

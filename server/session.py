@@ -4,9 +4,9 @@ Each connection gets its own GUI and 3D scene (viser's `client.gui` / `client.sc
 what one browser selects, filters, pins or replays never changes another browser's view.
 Panels are built by one function each (server.runs_panel, curves_panel, replay_panel,
 tables_panel, launch; laid out as tabs by server.app.layout) and return a `Panel`: what to do
-when runs change (the poll loop
-calls `refresh` with the runs whose info changed, so an idle dashboard sends nothing), when
-this browser's selection of runs to compare changes, and which runs' logs it has open.
+when runs change (the poll loop calls `refresh` with the runs whose info changed, so an idle
+dashboard sends nothing), when this browser's selection of runs to compare changes, and which
+runs' logs it has open.
 """
 
 from __future__ import annotations
