@@ -14,6 +14,7 @@ import pytest
 import torch
 
 from detach import cli
+from detach.config import resolve
 from detach.runs.curves import run_curve
 from detach.runs.folder import find_runs
 from detach.runs.sweep import _lock_path, cells, file_lock, load_sweep
@@ -127,6 +128,17 @@ def test_sweeps_share_the_cells_of_a_common_stage(tmp_path: Path) -> None:
     # with the new task's large value loss); the stage trained from scratch keeps rsl-rl's 1
     for c in cells(laptop, ROOT / "configs/sweeps/table1.yaml"):
         assert ("train.value_loss_coef=0.1" in c.overrides) == (c.stage != "follow"), c.key
+    # Carry and LH1 train on the task reward alone on the laptop (the style discriminator
+    # saturates on the puppet); the zero-shot LH1 stage is 40 iterations and keeps each
+    # checkpoint it saves, the composition stage 75 (its last override wins)
+    for c in cells(laptop, ROOT / "configs/sweeps/table1.yaml"):
+        assert ("train.amp.style_reward_weight=0" in c.overrides) == (c.stage != "follow"), c.key
+        resolved = resolve(c.task, c.model, c.overrides, c.seed, presets=c.presets)
+        assert resolved.train.keep_checkpoints.every % resolved.train.save_interval == 0, c.key
+        if c.stage == "lh1":
+            assert resolved.train.max_iterations == 40 and resolved.train.amp.style_reward_weight == 0
+    assert all(resolve(c.task, c.model, c.overrides, c.seed, presets=c.presets).train.max_iterations == 75
+               for c in lh1)
 
 
 def test_a_second_process_on_the_same_sweep_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
