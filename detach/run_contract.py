@@ -10,7 +10,8 @@ project: any layer may read it. docs/ARCHITECTURE.md ("Run folder") describes it
         status.json          `Status`
         stdout.log           everything the run printed
         log.mcap             /metrics `MetricsMessage` per iteration, /scene `SceneMessage`,
-                             /episode/bodies `EpisodeFrame` per recorded frame, /tf (Foxglove)
+                             /episode/bodies `EpisodeFrame` per recorded frame; for Foxglove
+                             /tf (frame transforms) and /foxglove/scene (the scene's meshes)
         checkpoints/model_<iteration>.pt
         checkpoints/amp_replay_<iteration>.pt   AMP replay buffer of the newest checkpoint
         eval.json            `EvalResult` on the run's own task; eval_<task>.json on another
