@@ -58,7 +58,7 @@ def collect_evals(runs: list[RunFolder], cells: Mapping[str, Collection[str]] | 
             except (OSError, ValueError) as exc:
                 report(f"skipped {path}: {exc}")
                 continue
-            if cells is not None and cell is not None and result.task not in cells[cell]:
+            if cells is not None and result.task not in cells[cell]:
                 unasked += 1
                 continue
             key = ("cell", cell, result.task) if cell else ("file", str(path))
