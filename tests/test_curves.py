@@ -27,3 +27,25 @@ def test_curves_of_a_run_are_its_logged_metrics_drawn_per_stage(tmp_path: Path) 
     assert sorted(p.name for p in written) == ["curves_carry.png", "curves_follow.png"] and not notes
     assert all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and p.stat().st_size > 10_000 for p in written)
     assert not list((tmp_path / "plots").glob(".*.tmp"))
+
+
+def test_a_figure_is_redrawn_only_when_its_runs_or_their_logs_change(tmp_path: Path) -> None:
+    out = tmp_path / "runs"
+    for seed in ("0", "1"):
+        assert cli.main(["configs/tasks/follow.yaml", "--model", "mlp", "--seed", seed, "--out", str(out), *TINY]) == 0
+    first, second = sorted(find_runs(out), key=lambda r: r.path.name)
+    plots, notes = tmp_path / "plots", []
+    both = {"follow/mlp/s0/a": first, "follow/mlp/s1/b": second}
+    assert [p.name for p in write_sweep_curves(both, plots, "mini", notes.append)] == ["curves_follow.png"]
+    drawn = (plots / "curves_follow.png").read_bytes()
+    assert write_sweep_curves(both, plots, "mini", notes.append) == []  # nothing changed: not redrawn
+    assert notes == ["curves_follow.png: up to date (its 2 runs' logs unchanged since it was drawn)"]
+    assert (plots / "curves_follow.png").read_bytes() == drawn
+    # another set of runs (a second sweep writing into the same folder), another title, a log
+    # that grew: each draws the figure again
+    assert len(write_sweep_curves({"follow/mlp/s0/a": first}, plots, "mini", notes.append)) == 1
+    assert len(write_sweep_curves({"follow/mlp/s0/a": first}, plots, "other", notes.append)) == 1
+    with open(first.log_path, "ab") as log:
+        log.write(b"\0")
+    assert len(write_sweep_curves({"follow/mlp/s0/a": first}, plots, "other", notes.append)) == 1
+    assert len(notes) == 1

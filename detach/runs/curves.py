@@ -5,10 +5,16 @@
 length and each success rate the environment logged), one line per model and seed, so a table
 comes with the training that produced it. matplotlib draws them (the `plots` extra); without it
 the tables are still written and a line says why the plots are not.
+
+A figure whose runs and their logs are unchanged since it was drawn is not drawn again: each
+PNG carries a digest of its title, cell keys, run folders and their logs' sizes and times in
+its metadata, compared before any log is read (a long study's logs are ~100 MB each, and a
+sweep's table is often made several times while its cells train).
 """
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -27,6 +33,8 @@ PANELS: tuple[tuple[str, tuple[str, ...]], ...] = (
 SUCCESS_PREFIXES = ("Episode_Success/", "Success/")
 """Success fractions of the episodes that ended in an iteration (the second: logs written before
 the rsl-rl naming)."""
+SOURCES_KEY = "detach:sources"
+"""PNG text key of a figure's source digest (`sources_digest`)."""
 SMOOTH = 10
 """Iterations in the trailing mean drawn over the raw (faint) values: success rates of the
 episodes that ended in one iteration are noisy."""
@@ -70,7 +78,32 @@ def _trailing_mean(values: list[float], window: int) -> list[float]:
     return out
 
 
-def plot_stage(stage: str, curves: list[Curve], path: Path, title: str) -> None:
+def sources_digest(title: str, runs: list[tuple[str, RunFolder]]) -> str:
+    """Digest of what a stage's figure is drawn from: the title, and per cell its key, run
+    folder and log file's size and modification time (a log being written changes both)."""
+    h = hashlib.sha256(title.encode())
+    for key, run in runs:
+        try:
+            st = run.log_path.stat()
+            size, mtime = st.st_size, st.st_mtime_ns
+        except OSError:
+            size, mtime = -1, -1
+        h.update(f"\0{key}\0{run.path.resolve()}\0{size}\0{mtime}".encode())
+    return h.hexdigest()
+
+
+def drawn_from(path: Path) -> str | None:
+    """The source digest stored in an existing figure, None if absent or unreadable."""
+    try:
+        from PIL import Image
+
+        with Image.open(path) as image:
+            return image.text.get(SOURCES_KEY)  # type: ignore[attr-defined]
+    except (OSError, ImportError, AttributeError, ValueError):
+        return None
+
+
+def plot_stage(stage: str, curves: list[Curve], path: Path, title: str, sources: str | None = None) -> None:
     """One figure: a panel per metric any curve has, a line per curve."""
     import matplotlib
 
@@ -104,28 +137,38 @@ def plot_stage(stage: str, curves: list[Curve], path: Path, title: str) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     try:
         with atomic_writer(path) as handle:
-            fig.savefig(handle, dpi=110, format="png")
+            fig.savefig(handle, dpi=110, format="png",
+                        metadata={SOURCES_KEY: sources} if sources is not None else None)
     finally:
         plt.close(fig)
 
 
 def write_sweep_curves(runs: dict[str, RunFolder], out: Path, title: str, report: Report) -> list[Path]:
     """`runs`: sweep cell key (`<stage>/<model>/s<seed>/<digest>`) -> its run folder. Writes
-    `out/curves_<stage>.png` for each stage with a logged run; returns the files written."""
+    `out/curves_<stage>.png` for each stage with a logged run, unless the figure there was drawn
+    from the same runs and logs (module docstring); returns the files written."""
     try:
         import matplotlib  # noqa: F401
     except ImportError:
         report("learning curves not drawn: matplotlib is not installed (pip install 'detach[plots]')")
         return []
-    by_stage: dict[str, list[Curve]] = {}
+    by_stage: dict[str, list[tuple[str, RunFolder]]] = {}
     for key, run in sorted(runs.items()):
-        stage, model, seed = key.split("/")[:3]
-        curve = run_curve(run, model, int(seed.removeprefix("s")))
-        if curve is not None:
-            by_stage.setdefault(stage, []).append(curve)
+        by_stage.setdefault(key.split("/")[0], []).append((key, run))
     written = []
-    for stage, curves in by_stage.items():
+    for stage, cells in by_stage.items():
         path = out / f"curves_{stage}.png"
-        plot_stage(stage, curves, path, title)
-        written.append(path)
+        sources = sources_digest(title, cells)
+        if path.exists() and drawn_from(path) == sources:
+            report(f"{path.name}: up to date (its {len(cells)} runs' logs unchanged since it was drawn)")
+            continue
+        curves = []
+        for key, run in cells:
+            model, seed = key.split("/")[1:3]
+            curve = run_curve(run, model, int(seed.removeprefix("s")))
+            if curve is not None:
+                curves.append(curve)
+        if curves:
+            plot_stage(stage, curves, path, title, sources)
+            written.append(path)
     return written
