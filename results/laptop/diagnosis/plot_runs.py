@@ -47,11 +47,11 @@ def main() -> None:
         writer = csv.writer(f)
         writer.writerow(["run", "run_dir", "metric", "iteration", "value"])
         for ax, metric in zip(axes[0], args.metric):
-            for label, run in runs:
+            for i, (label, run) in enumerate(runs):  # one colour per run on every axis
                 points = series(logs[run], metric)
                 writer.writerows([label, run.name, metric, it, f"{v:.6g}"] for it, v in points)
                 if points:
-                    ax.plot([p[0] for p in points], [p[1] for p in points], label=label, lw=1.2)
+                    ax.plot([p[0] for p in points], [p[1] for p in points], label=label, lw=1.2, color=f"C{i}")
             ax.set_title(metric, fontsize=9)
             ax.set_xlabel("PPO iteration")
             ax.grid(alpha=0.3)
