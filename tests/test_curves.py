@@ -23,8 +23,8 @@ def test_curves_of_a_run_are_its_logged_metrics_drawn_per_stage(tmp_path: Path) 
     assert lengths and all(0 < v <= 6 for v in lengths)  # episodes of at most 6 steps ended
     notes: list[str] = []
     written = write_sweep_curves({"follow/mlp/s0/abc": run, "carry/mlp/s0/def": run}, tmp_path / "plots",
-                                 "mini", notes.append)
-    assert sorted(p.name for p in written) == ["curves_carry.png", "curves_follow.png"] and not notes
+                                 "mini", "mini", notes.append)
+    assert sorted(p.name for p in written) == ["curves_mini_carry.png", "curves_mini_follow.png"] and not notes
     assert all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and p.stat().st_size > 10_000 for p in written)
     assert not list((tmp_path / "plots").glob(".*.tmp"))
 
@@ -36,16 +36,21 @@ def test_a_figure_is_redrawn_only_when_its_runs_or_their_logs_change(tmp_path: P
     first, second = sorted(find_runs(out), key=lambda r: r.path.name)
     plots, notes = tmp_path / "plots", []
     both = {"follow/mlp/s0/a": first, "follow/mlp/s1/b": second}
-    assert [p.name for p in write_sweep_curves(both, plots, "mini", notes.append)] == ["curves_follow.png"]
-    drawn = (plots / "curves_follow.png").read_bytes()
-    assert write_sweep_curves(both, plots, "mini", notes.append) == []  # nothing changed: not redrawn
-    assert notes == ["curves_follow.png: up to date (its 2 runs' logs unchanged since it was drawn)"]
-    assert (plots / "curves_follow.png").read_bytes() == drawn
-    # another set of runs (a second sweep writing into the same folder), another title, a log
+    written = write_sweep_curves(both, plots, "mini", "mini", notes.append)
+    assert [p.name for p in written] == ["curves_mini_follow.png"]
+    drawn = (plots / "curves_mini_follow.png").read_bytes()
+    assert write_sweep_curves(both, plots, "mini", "mini", notes.append) == []  # nothing changed: not redrawn
+    assert notes == ["curves_mini_follow.png: up to date (its 2 runs' logs unchanged since it was drawn)"]
+    assert (plots / "curves_mini_follow.png").read_bytes() == drawn
+    # another sweep's table in the same folder writes its own figure, not over this one
+    other = write_sweep_curves(both, plots, "table3", "t3", notes.append)
+    assert [p.name for p in other] == ["curves_table3_follow.png"]
+    assert (plots / "curves_mini_follow.png").read_bytes() == drawn
+    # another set of runs of the same sweep, another title, a log
     # that grew: each draws the figure again
-    assert len(write_sweep_curves({"follow/mlp/s0/a": first}, plots, "mini", notes.append)) == 1
-    assert len(write_sweep_curves({"follow/mlp/s0/a": first}, plots, "other", notes.append)) == 1
+    assert len(write_sweep_curves({"follow/mlp/s0/a": first}, plots, "mini", "mini", notes.append)) == 1
+    assert len(write_sweep_curves({"follow/mlp/s0/a": first}, plots, "mini", "other", notes.append)) == 1
     with open(first.log_path, "ab") as log:
         log.write(b"\0")
-    assert len(write_sweep_curves({"follow/mlp/s0/a": first}, plots, "other", notes.append)) == 1
+    assert len(write_sweep_curves({"follow/mlp/s0/a": first}, plots, "mini", "other", notes.append)) == 1
     assert len(notes) == 1

@@ -78,7 +78,7 @@ def test_a_sweep_runs_its_stages_in_order_each_starting_from_the_last(tmp_path: 
     # learning curves beside the table, one figure per stage, from the runs' logs
     for stage, run in runs.items():  # a stage whose 2 iterations ended no episode has nothing to draw
         curve = run_curve(run, "mlp", 0)
-        png = out / "tables" / f"curves_{stage}.png"
+        png = out / "tables" / f"curves_mini_{stage}.png"  # named by sweep and stage
         assert png.exists() == (curve is not None), stage
         if curve is not None:
             assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -1,7 +1,8 @@
 """Learning curves of a sweep's runs as PNG files, drawn from each run's log.mcap.
 
 `detach-run table SWEEP --out DIR` writes one figure per stage of the protocol
-(`curves_<stage>.png`: Follow, Carry, LH1, ...), a panel per metric (mean reward, episode
+(`curves_<sweep>_<stage>.png`, e.g. `curves_table1_follow.png`: named by sweep, since several
+sweeps' tables share an --out folder and share stages with different models), a panel per metric (mean reward, episode
 length and each success rate the environment logged), one line per model and seed, so a table
 comes with the training that produced it. matplotlib draws them (the `plots` extra); without it
 the tables are still written and a line says why the plots are not.
@@ -143,9 +144,10 @@ def plot_stage(stage: str, curves: list[Curve], path: Path, title: str, sources:
         plt.close(fig)
 
 
-def write_sweep_curves(runs: dict[str, RunFolder], out: Path, title: str, report: Report) -> list[Path]:
+def write_sweep_curves(runs: dict[str, RunFolder], out: Path, name: str, title: str,
+                       report: Report) -> list[Path]:
     """`runs`: sweep cell key (`<stage>/<model>/s<seed>/<digest>`) -> its run folder. Writes
-    `out/curves_<stage>.png` for each stage with a logged run, unless the figure there was drawn
+    `out/curves_<name>_<stage>.png` for each stage with a logged run, unless the figure there was drawn
     from the same runs and logs (module docstring); returns the files written."""
     try:
         import matplotlib  # noqa: F401
@@ -157,7 +159,7 @@ def write_sweep_curves(runs: dict[str, RunFolder], out: Path, title: str, report
         by_stage.setdefault(key.split("/")[0], []).append((key, run))
     written = []
     for stage, cells in by_stage.items():
-        path = out / f"curves_{stage}.png"
+        path = out / f"curves_{name}_{stage}.png"
         sources = sources_digest(title, cells)
         if path.exists() and drawn_from(path) == sources:
             report(f"{path.name}: up to date (its {len(cells)} runs' logs unchanged since it was drawn)")

@@ -126,7 +126,7 @@ def print_table(source: Path, runs_dir: Path, kind: str | None, out: Path | None
         from detach.runs.curves import write_sweep_curves
 
         title = f"{name}" + (f" [{preset}]" if preset else "")
-        for path in write_sweep_curves(curves, out, title, _stderr):
+        for path in write_sweep_curves(curves, out, name, title, _stderr):
             print(f"written: {path}")
     return 0
 
