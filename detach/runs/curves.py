@@ -2,9 +2,9 @@
 
 `detach-run table SWEEP --out DIR` writes one figure per stage of the protocol
 (`curves_<sweep>_<stage>.png`, e.g. `curves_table1_follow.png`: named by sweep, since several
-sweeps' tables share an --out folder and share stages with different models), a panel per metric (mean reward, episode
-length and each success rate the environment logged), one line per model and seed, so a table
-comes with the training that produced it. matplotlib draws them (the `plots` extra); without it
+sweeps' tables share an --out folder and their stages with different models), a panel per
+metric (mean reward, episode length and each success rate the environment logged), one line
+per model and seed, so a table comes with the training that produced it. matplotlib draws them (the `plots` extra); without it
 the tables are still written and a line says why the plots are not.
 
 A figure whose runs and their logs are unchanged since it was drawn is not drawn again: each
