@@ -46,8 +46,7 @@ def test_a_figure_is_redrawn_only_when_its_runs_or_their_logs_change(tmp_path: P
     other = write_sweep_curves(both, plots, "table3", "t3", notes.append)
     assert [p.name for p in other] == ["curves_table3_follow.png"]
     assert (plots / "curves_mini_follow.png").read_bytes() == drawn
-    # another set of runs of the same sweep, another title, a log
-    # that grew: each draws the figure again
+    # another set of runs of the same sweep, another title, a log that grew: each draws it again
     assert len(write_sweep_curves({"follow/mlp/s0/a": first}, plots, "mini", "mini", notes.append)) == 1
     assert len(write_sweep_curves({"follow/mlp/s0/a": first}, plots, "mini", "other", notes.append)) == 1
     with open(first.log_path, "ab") as log:

@@ -4,8 +4,9 @@
 (`curves_<sweep>_<stage>.png`, e.g. `curves_table1_follow.png`: named by sweep, since several
 sweeps' tables share an --out folder and their stages with different models), a panel per
 metric (mean reward, episode length and each success rate the environment logged), one line
-per model and seed, so a table comes with the training that produced it. matplotlib draws them (the `plots` extra); without it
-the tables are still written and a line says why the plots are not.
+per model and seed, so a table comes with the training that produced it. matplotlib draws
+them (the `plots` extra); without it the tables are still written and a line says why the
+plots are not.
 
 A figure whose runs and their logs are unchanged since it was drawn is not drawn again: each
 PNG carries a digest of its title, cell keys, run folders and their logs' sizes and times in
@@ -147,8 +148,8 @@ def plot_stage(stage: str, curves: list[Curve], path: Path, title: str, sources:
 def write_sweep_curves(runs: dict[str, RunFolder], out: Path, name: str, title: str,
                        report: Report) -> list[Path]:
     """`runs`: sweep cell key (`<stage>/<model>/s<seed>/<digest>`) -> its run folder. Writes
-    `out/curves_<name>_<stage>.png` for each stage with a logged run, unless the figure there was drawn
-    from the same runs and logs (module docstring); returns the files written."""
+    `out/curves_<name>_<stage>.png` for each stage with a logged run, unless the figure there
+    was drawn from the same runs and logs (module docstring); returns the files written."""
     try:
         import matplotlib  # noqa: F401
     except ImportError:
@@ -161,7 +162,7 @@ def write_sweep_curves(runs: dict[str, RunFolder], out: Path, name: str, title: 
     for stage, cells in by_stage.items():
         path = out / f"curves_{name}_{stage}.png"
         sources = sources_digest(title, cells)
-        if path.exists() and drawn_from(path) == sources:
+        if drawn_from(path) == sources:  # None when there is no figure yet
             report(f"{path.name}: up to date (its {len(cells)} runs' logs unchanged since it was drawn)")
             continue
         curves = []
