@@ -18,7 +18,7 @@ PACKAGES = ("detach", "scene_builder", "server")
 
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("config", ("detach", "detach.yaml_source", "detach.config_validate", "detach.config_schema",
-                "detach.config", "detach.torch_math", "detach.run_contract")),
+                "detach.config", "detach.torch_math", "detach.host_sync", "detach.run_contract")),
     ("assets", ("scene_builder",)),
     ("character", ("detach.character",)),
     ("scene", ("scene_builder.scene", "detach.sim", "detach.motion")),

@@ -125,7 +125,7 @@ def test_fall_terminates_and_resets():
 def test_traj_deviation_terminates():
     env = make_env(_two_point_plan_cfg(), num_envs=1)
     env.tracker.subtask[:] = 1  # trajectory 1 runs to x = 8 m at 1.45 m/s; standing still falls behind
-    env.tracker.start(torch.tensor([0]), env.steps, torch.zeros(1, 2))
+    env.tracker.start(torch.tensor([True]), env.steps, torch.zeros(1, 2))
     for t in range(200):
         _, _, dones, extras = env.step(torch.zeros(1, env.num_actions))
         if dones.any():

@@ -135,10 +135,10 @@ def test_per_world_equality_data_and_reset_to_defaults(name, scene):
     be = _backend(name, scene)
     _start(be, model)
     eq = info.objects[info.dynamic[0]].link_eq
-    data = torch.zeros(2, 12)
+    data = torch.zeros(N, 12)
     data[:, 6], data[:, 10] = 1.0, 1.0  # identity relative rotation (wxyz at 6:10), torque scale
     data[0, 3:6] = torch.tensor([0.1, 0.2, 0.3])
-    be.set_equality(torch.tensor([0, 2]), eq, torch.ones(2), data)
+    be.set_equality(torch.tensor([True, False, True]), eq, torch.ones(N), data)
     assert be.eq_active[:, eq].tolist() == [1.0, 0.0, 1.0]
     be.step(_ctrl(model, N), 4)
     assert torch.isfinite(be.qpos).all()

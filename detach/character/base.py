@@ -47,7 +47,7 @@ class CharacterState(Protocol):
 class EqualityBackend(Protocol):
     """The part of the physics backend a character may drive (equality constraints)."""
 
-    def set_equality(self, ids: torch.Tensor, eq_id: int, active: torch.Tensor,
+    def set_equality(self, mask: torch.Tensor, eq_id: int, active: torch.Tensor,
                      data: torch.Tensor | None = None) -> None: ...
 
 
@@ -131,8 +131,9 @@ class Character(ABC):
 
     def hold(self, ids: torch.Tensor, slots: torch.Tensor, root_pos: torch.Tensor, root_quat: torch.Tensor,
              obj_pos: torch.Tensor, obj_quat: torch.Tensor) -> None:
-        """Envs ids [n] (just reset) start holding movable objects slots [n], the pelvis at
-        root_pos/root_quat and the objects at obj_pos/obj_quat (world frame, wxyz)."""
+        """Envs ids [n] (just reset) start holding movable objects slots [n] (-1: that row holds
+        nothing), the pelvis at root_pos/root_quat and the objects at obj_pos/obj_quat (world
+        frame, wxyz)."""
         raise NotImplementedError(f"character '{self.name}' cannot start an episode holding an object; use one "
                                   f"of {', '.join(n for n, c in CHARACTERS.items() if c.can_hold)}")
 

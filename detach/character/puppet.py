@@ -40,6 +40,7 @@ import torch
 from detach.character.actions import pd_actions, pd_targets
 from detach.character.base import Character, ScriptedCommand, register_character
 from detach.character.body import NUM_DOF, START_HEIGHT
+from detach.host_sync import may_any
 from detach.torch_math import point_box_distance, quat_conj, quat_mul, quat_rotate, rotate_yaw, wrap_angle
 
 ROOT_JOINTS: tuple[str, ...] = ("root_x", "root_y", "root_z", "root_yaw")
@@ -175,41 +176,49 @@ class Puppet(Character):
         return self.grasp_obj
 
     def pre_step(self, actions: torch.Tensor, state) -> None:
-        """The grasp rule (module docstring): weld on request when both hands are near."""
-        want = actions[:, GRASP_ACTION] > 0.0
-        held = self.grasp_obj >= 0
-        release = (held & (actions[:, GRASP_ACTION] < RELEASE_BELOW)).nonzero(as_tuple=False).squeeze(-1)
-        for k, obj in enumerate(self.movable):
-            r = release[self.grasp_obj[release] == k]
-            self.backend.set_equality(r, obj.link_eq, torch.zeros(len(r)))
-        self.grasp_obj[release] = -1
-        cand = (want & (self.grasp_obj < 0)).nonzero(as_tuple=False).squeeze(-1)
-        if len(cand) == 0 or len(self.movable) == 0:
+        """The grasp rule (module docstring): weld on request when both hands are near.
+        Masks throughout: no host read where that is not free (`detach.host_sync`)."""
+        if not self.movable:
             return
-        dpos, dquat = state.obj_pos[cand][:, self.movable_index], state.obj_quat[cand][:, self.movable_index]
-        hands = state.body_pos[cand][:, self.hand_ids]
-        ok = grasp_condition(hands, dpos, dquat, self.movable_half)
-        first = torch.where(ok.any(-1), ok.float().argmax(-1), torch.full_like(cand, -1))
+        g = actions[:, GRASP_ACTION]
+        release = (self.grasp_obj >= 0) & (g < RELEASE_BELOW)
+        if may_any(release):
+            off = torch.zeros(self.num_envs, device=self.device)
+            for k, obj in enumerate(self.movable):
+                self.backend.set_equality(release & (self.grasp_obj == k), obj.link_eq, off)
+            self.grasp_obj.masked_fill_(release, -1)
+        cand = (g > 0.0) & (self.grasp_obj < 0)
+        if not may_any(cand):
+            return
+        dpos, dquat = state.obj_pos[:, self.movable_index], state.obj_quat[:, self.movable_index]
+        ok = grasp_condition(state.body_pos[:, self.hand_ids], dpos, dquat, self.movable_half) & cand[:, None]
+        first = torch.where(ok.any(-1), ok.float().argmax(-1), torch.full_like(self.grasp_obj, -1))
         for k in range(len(self.movable)):
             sel = first == k
-            if bool(sel.any()):
-                e = cand[sel]
-                self._weld(e, k, state.root_pos[e], state.root_quat[e], dpos[sel, k], dquat[sel, k])
+            if may_any(sel):
+                self._weld(sel, k, state.root_pos, state.root_quat, dpos[:, k], dquat[:, k])
 
     def hold(self, ids, slots, root_pos, root_quat, obj_pos, obj_quat) -> None:
+        n, d = self.num_envs, self.device
+        slot = torch.full((n,), -1, dtype=torch.long, device=d)
+        slot[ids] = slots
+        rows = [torch.zeros(n, *t.shape[1:], dtype=t.dtype, device=d) for t in (root_pos, root_quat, obj_pos, obj_quat)]
+        for full, part in zip(rows, (root_pos, root_quat, obj_pos, obj_quat)):
+            full[ids] = part
         for k in range(len(self.movable)):
-            sel = slots == k
-            if bool(sel.any()):
-                self._weld(ids[sel], k, root_pos[sel], root_quat[sel], obj_pos[sel], obj_quat[sel])
+            sel = slot == k
+            if may_any(sel):
+                self._weld(sel, k, *rows)
 
-    def _weld(self, ids: torch.Tensor, k: int, root_pos: torch.Tensor, root_quat: torch.Tensor,
+    def _weld(self, mask: torch.Tensor, k: int, root_pos: torch.Tensor, root_quat: torch.Tensor,
               obj_pos: torch.Tensor, obj_quat: torch.Tensor) -> None:
-        """Attach movable object k to the pelvis of envs ids, keeping their relative pose."""
+        """Attach movable object k to the pelvis of the envs in mask [N], keeping their relative
+        pose (root_pos, root_quat, obj_pos, obj_quat: [N, ...], world frame)."""
         inv = quat_conj(root_quat)
-        data = torch.zeros(len(ids), 12, device=self.device)
+        data = torch.zeros(len(mask), 12, device=self.device)
         data[:, 3:6], data[:, 6:10], data[:, 10] = quat_rotate(inv, obj_pos - root_pos), quat_mul(inv, obj_quat), 1.0
-        self.backend.set_equality(ids, self.movable[k].link_eq, torch.ones(len(ids)), data)
-        self.grasp_obj[ids] = k
+        self.backend.set_equality(mask, self.movable[k].link_eq, torch.ones(len(mask), device=self.device), data)
+        self.grasp_obj.masked_fill_(mask, k)
 
     def controls(self, actions: torch.Tensor, qpos: torch.Tensor) -> torch.Tensor:
         yaw = qpos[:, self.root_qpos_adr + 3]

@@ -31,6 +31,7 @@ from detach.envs.resets import ReferenceSampler, ResetSampler
 from detach.envs.rewards import RewardManager
 from detach.envs.subtask_starts import RECORD_ENVS, SubtaskStarts, recording_summary, record_subtask_starts
 from detach.envs.terminations import Terminations
+from detach.host_sync import may_any
 from detach.sim import make_backend, sim_settings
 from detach.sim.raster import Raster
 from detach.sim.state import SceneIndex, SimState, read_state
@@ -144,16 +145,17 @@ class LHEnv(VecEnv):
         timeout = self.episode_length_buf >= self.max_episode_length
         time_outs = (timeout | self.terminations.last_subtask_ends(last_done)) & ~terminated
         dones = terminated | time_outs
-        extras: dict = {"time_outs": time_outs, "log": {f"Episode_Reward/{k}": v.mean() for k, v in parts.items()}}
+        extras: dict = {"time_outs": time_outs, "log": {f"Episode_Reward/{k}": v.nanmean() for k, v in parts.items()}}
+        # The step's one host read, as in IsaacLab's and mjlab's envs: which episodes ended.
         ids = dones.nonzero(as_tuple=False).squeeze(-1)
         if len(ids):
             prog = self.tracker.progress()
             prog.update(ended, length=self.steps.clone())
             extras["episode_progress"] = prog
             extras["log"].update(self.tracker.episode_log(prog, ids, self.terminations.names,
-                                                          ids[~self.started_mid_task[ids]]))
+                                                          ~self.started_mid_task[ids]))
             self._reset_envs(ids)
-        if self.tracker.advanced or len(ids):  # targets changed since the reward: recompute them
+        if len(ids) or may_any(self.tracker.advanced):  # targets changed since the reward: recompute them
             ctx = self.context(self._read() if len(ids) else ctx.state)
         self.obs = self._observe(ctx, ids)
         return self.obs, rew, dones, extras
@@ -206,53 +208,55 @@ class LHEnv(VecEnv):
         return starts if len(starts) else None
 
     def _start_at_later_subtasks(self, ids: torch.Tensor, qpos: torch.Tensor, qvel: torch.Tensor,
-                                 root_xy: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor] | None:
+                                 root_xy: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Turn a share `env.subtask_start_prob` of the starts of envs ids that did not start
         mid-task into recorded subtask starts (qpos, qvel, root_xy changed in place). Returns
-        (rows of ids, recorded state of each) or None."""
+        (late [n] bool: the rows of ids that start so, the recorded state drawn for every row)."""
         draw = torch.rand(len(ids), generator=self.gen, device=self.gen.device).to(self.device)
-        rows = ((draw < self.cfg.env.subtask_start_prob) & ~self.started_mid_task[ids]).nonzero(
-            as_tuple=False).squeeze(-1)
-        if len(rows) == 0:
-            return None
+        late = (draw < self.cfg.env.subtask_start_prob) & ~self.started_mid_task[ids]
         starts = self.subtask_starts
-        pick = starts.draw(len(rows), self.gen)
-        qpos[rows], qvel[rows], root_xy[rows] = starts.qpos[pick], starts.qvel[pick], starts.root_pos[pick, :2]
-        self.tracker.objects[ids[rows]] = starts.objects[pick]
-        self.started_mid_task[ids[rows]] = True
-        return rows, pick
+        pick = starts.draw(len(ids), self.gen)
+        rows = late[:, None]
+        qpos.copy_(torch.where(rows, starts.qpos[pick], qpos))
+        qvel.copy_(torch.where(rows, starts.qvel[pick], qvel))
+        root_xy.copy_(torch.where(rows, starts.root_pos[pick, :2], root_xy))
+        self.tracker.objects[ids] = torch.where(rows, starts.objects[pick], self.tracker.objects[ids])
+        self.started_mid_task[ids] |= late
+        return late, pick
 
     def _reset_envs(self, ids: torch.Tensor) -> None:
+        """New episodes in envs ids; selections within them are masks (no host read)."""
         qpos, qvel, root_xy = self.resets.sample(ids)
         self.tracker.draw_objects(ids)
-        mid = None
         self.started_mid_task[ids] = False
+        holds = []  # (slot [n], -1 where none; pelvis pos, quat; object pos, quat)
         if self.mid_task_skill is not None:
             mid = self.resets.mid_task(ids, self.tracker.objects[ids, 0], self.mid_task_skill, self.mid_task_target,
                                        self.index.obj_half, qpos, qvel, root_xy)
             if mid is not None:
-                self.started_mid_task[ids[mid[0]]] = True
+                pick, start = mid
+                self.started_mid_task[ids] = pick
+                slot = torch.where(pick & start.held, self.dyn_slot[self.tracker.objects[ids, 0]], -1)
+                root = torch.cat((start.root_xy, start.height[:, None]), -1)
+                holds.append((slot, root, quat_from_yaw(start.yaw), start.obj_pos, start.obj_quat))
         late = None if self.subtask_starts is None else self._start_at_later_subtasks(ids, qpos, qvel, root_xy)
+        if late is not None:
+            st, (rows, pick) = self.subtask_starts, late
+            holds.append((torch.where(rows, st.held[pick], -1), st.root_pos[pick], st.root_quat[pick],
+                          st.held_pos[pick], st.held_quat[pick]))
         self.backend.reset(ids, qpos, qvel)
         self.episode_length_buf[ids] = 0
         self.steps[ids] = 0
         self.character.reset(ids)
-        if mid is not None and bool(mid[2].held.any()):
-            rows, obj, start = mid
-            h = start.held
-            root = torch.cat((start.root_xy, start.height[:, None]), -1)[h]
-            self.character.hold(ids[rows[h]], self.dyn_slot[obj[h]], root, quat_from_yaw(start.yaw[h]),
-                                start.obj_pos[h], start.obj_quat[h])
+        for slot, *pose in holds:
+            if self.character.can_hold and may_any(slot >= 0):
+                self.character.hold(ids, slot, *pose)
+        xy = torch.zeros(self.num_envs, 2, device=self.device)
+        xy[ids] = root_xy
+        self.tracker.reset(ids, self.steps, xy)
         if late is not None:
             rows, pick = late
-            st, h = self.subtask_starts, self.subtask_starts.held[pick] >= 0
-            if bool(h.any()):
-                p = pick[h]
-                self.character.hold(ids[rows[h]], st.held[p], st.root_pos[p], st.root_quat[p], st.held_pos[p],
-                                    st.held_quat[p])
-        self.tracker.reset(ids, self.steps, root_xy)
-        if late is not None:
-            self.tracker.begin_at(ids[rows], self.subtask_starts.subtask[pick], self.steps, root_xy[rows])
+            self.tracker.begin_at(ids, rows, self.subtask_starts.subtask[pick], self.steps, xy)
 
     def reset(self, ids: torch.Tensor | None = None) -> TensorDict:
         """Start new episodes in envs ids (all by default); returns the observations."""

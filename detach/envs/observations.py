@@ -34,11 +34,11 @@ from __future__ import annotations
 import math
 
 import torch
-import torch.nn.functional as F
 from tensordict import TensorDict
 
 from detach.config_schema import EnvCfg
 from detach.envs.obs_spec import ObsSpec
+from detach.host_sync import reads_are_free
 from detach.sim.raster import Raster
 from detach.torch_math import box_corners_fast, heading_matrix, quat_axes_xz, quat_to_matrix, yaw_of
 
@@ -113,8 +113,8 @@ def local_height_map(root_pos: torch.Tensor, R: torch.Tensor, offsets: torch.Ten
     the static raster, raised to the top of any moving box whose footprint covers a point.
 
     offsets [P, 3] heading-frame grid offsets; dyn_pos [N, K, 3], dyn_quat [N, K, 4] (wxyz),
-    dyn_half [K, 3]. Only (env, box) pairs within reach of the grid are evaluated, so
-    far-away boxes cost nothing.
+    dyn_half [K, 3]. On a CPU only the (env, box) pairs within reach of the grid are
+    evaluated, so far-away boxes cost nothing; on an accelerator every pair is, masked.
     """
     c, s = R[:, 0, 0], R[:, 1, 0]
     # world XY of every point, expressed directly in the raster's sampling coordinates
@@ -125,17 +125,23 @@ def local_height_map(root_pos: torch.Tensor, R: torch.Tensor, offsets: torch.Ten
     K = dyn_pos.shape[1]
     if K == 0:
         return h
-    reach = math.sqrt(2.0) * float(offsets[:, :2].abs().max()) + dyn_half[:, :2].norm(dim=-1)  # [K]
+    reach = math.sqrt(2.0) * offsets[:, :2].abs().amax() + dyn_half[:, :2].norm(dim=-1)  # [K]
     near = (dyn_pos[..., :2] - root_pos[:, None, :2]).norm(dim=-1) < reach
-    e, k = near.nonzero(as_tuple=True)
-    if len(e) == 0:
-        return h
+    if reads_are_free(near):  # gather the pairs within reach
+        e, k = near.nonzero(as_tuple=True)
+        if len(e) == 0:
+            return h
+    else:  # every pair, the far ones masked: their number would need a host read
+        N = near.shape[0]
+        e = torch.arange(N, device=near.device).repeat_interleave(K)
+        k = torch.arange(K, device=near.device).repeat(N)
     pts = root_pos[e, None, :2] + (offsets @ R[e].transpose(1, 2))[..., :2]  # [M, P, 2] world XY
     Rb = quat_to_matrix(dyn_quat[e, k])  # [M, 3, 3]
     local = (torch.cat((pts - dyn_pos[e, k, None, :2], torch.zeros_like(pts[..., :1])), dim=-1) @ Rb)[..., :2]
     half = dyn_half[k]
     inside = (local[..., 0].abs() <= half[:, None, 0]) & (local[..., 1].abs() <= half[:, None, 1])
     top = box_corners_fast(dyn_pos[e, k], dyn_quat[e, k], half)[..., 2].max(dim=-1).values  # [M]
+    inside &= near[e, k][:, None]
     val = torch.where(inside, top[:, None], torch.zeros_like(local[..., 0]))
     return h.scatter_reduce(0, e[:, None].expand_as(val), val, reduce="amax")
 
@@ -189,6 +195,7 @@ class ObservationBuilder:
                  key_bodies: list[int], dyn: torch.Tensor, obj_half: torch.Tensor, device: torch.device) -> None:
         hm, samples = cfg.height_map, cfg.trajectory.num_samples
         self.cfg, self.num_envs, self.num_skills, self.device = cfg, num_envs, num_skills, device
+        self.skill_ids = torch.arange(num_skills, device=device)
         self.raster, self.dyn, self.obj_half = raster, dyn, obj_half
         self.hm_offsets = height_grid_offsets(hm.grid, hm.spacing, device)
         self.amp_idx = amp_index(key_bodies).to(device)
@@ -224,7 +231,7 @@ class ObservationBuilder:
             h.push(f)
             if len(reset_ids):
                 h.fill(reset_ids, f[reset_ids])
-        task = F.one_hot(ctx.skill, self.num_skills).float()
+        task = (ctx.skill[:, None] == self.skill_ids).float()  # F.one_hot checks its input on the host
         extra = torch.cat(((ctx.obj_lin[:, None] @ R)[:, 0] * ctx.has_obj[:, None], hold[:, None],
                            progress[:, None]), dim=-1)
         critic = torch.cat((f_self, f_env, task, extra), dim=-1)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import torch
 
+from detach.host_sync import may_any
 from detach.sim.state import SceneIndex, SimState
 from detach.skills import Skill, Subtask, skill_class, skill_names
 from detach.skills.context import SkillContext, SkillServices
@@ -43,7 +44,8 @@ class PlanTracker:
         self.done = z(n, s, dtype=torch.bool)
         self.start_step, self.end_step = z(n, s) - 1, z(n, s) - 1
         self.stats = {k: z(n, s, dtype=dt) for sk in self.skills.values() for k, dt in sk.stats.items()}
-        self.advanced = False
+        self.advanced = torch.zeros(n, dtype=torch.bool, device=d)
+        """[N] the envs whose subtask changed at the last `advance`."""
         self.objects = self.tensors.obj.expand(n, s).clone()
         """[N, S] each env's object of every subtask (drawn at reset where the plan gives choices)."""
         self.choices = {i: torch.tensor(sub.choices, device=d) for i, sub in enumerate(plan) if sub.choices}
@@ -92,10 +94,11 @@ class PlanTracker:
 
     def advance(self, ctx: SkillContext, steps: torch.Tensor) -> torch.Tensor:
         """Accumulate statistics and hold counters; fire transitions. Returns bool [N]: the
-        last subtask completed at this step."""
+        last subtask completed at this step. `advanced` [N] marks the envs whose subtask
+        changed. Reads nothing on the host where that is not free (`detach.host_sync`)."""
         for i, skill in self.skills.items():
             active = ctx.skill == i
-            if bool(active.any()):
+            if may_any(active):
                 skill.update_stats(ctx, active, self.stats)
         ar, sub = torch.arange(len(steps), device=steps.device), self.subtask
         self.hold = torch.where(ctx.dist <= self.services.cfg.env.success_threshold, self.hold + 1,
@@ -104,27 +107,27 @@ class PlanTracker:
         self.done[ar, sub] |= complete
         self.end_step[ar, sub] = torch.where(complete, steps, self.end_step[ar, sub])
         last = sub == self.num_subtasks - 1
-        adv = (complete & ~last).nonzero(as_tuple=False).squeeze(-1)
-        self.advanced = len(adv) > 0
-        if len(adv):
-            self.subtask[adv] += 1
-            self.hold[adv] = 0
-            self.start(adv, steps, ctx.state.root_pos[adv, :2])
+        self.advanced = complete & ~last
+        if may_any(self.advanced):
+            self.subtask += self.advanced.long()
+            self.hold.masked_fill_(self.advanced, 0)
+            self.start(self.advanced, steps, ctx.state.root_pos[:, :2])
         return complete & last
 
-    def start(self, ids: torch.Tensor, steps: torch.Tensor, root_xy: torch.Tensor) -> None:
-        """Stamp the start of each env's current subtask and let its skill set it up."""
-        sub = self.subtask[ids]
-        self.start_step[ids, sub] = steps[ids]
-        self.services.trajectory.restart(ids, steps[ids])
+    def start(self, mask: torch.Tensor, steps: torch.Tensor, root_xy: torch.Tensor) -> None:
+        """Stamp the start of the current subtask of the envs in mask [N] and let its skill set
+        it up (steps [N], root_xy [N, 2]: every env's; only the masked rows are used)."""
+        ar, sub = torch.arange(len(mask), device=mask.device), self.subtask
+        self.start_step[ar, sub] = torch.where(mask, steps, self.start_step[ar, sub])
+        self.services.trajectory.restart(mask, steps)
         skill = self.tensors.skill[sub]
         for i, s in self.skills.items():
-            m = skill == i
-            if bool(m.any()):
-                s.start(ids[m], sub[m], root_xy[m])
-        park = ~self.follows_path[skill]
-        if bool(park.any()):
-            self.services.trajectory.park(ids[park], root_xy[park])
+            m = mask & (skill == i)
+            if may_any(m):
+                s.start(m, sub, root_xy)
+        park = mask & ~self.follows_path[skill]
+        if may_any(park):
+            self.services.trajectory.park(park, root_xy)
 
     def draw_objects(self, ids: torch.Tensor) -> None:
         """New episodes in envs ids: draw the object of every subtask that has choices."""
@@ -134,7 +137,8 @@ class PlanTracker:
             self.objects[ids, i] = options[pick]
 
     def reset(self, ids: torch.Tensor, steps: torch.Tensor, root_xy: torch.Tensor) -> None:
-        """New episodes in envs ids (objects drawn with `draw_objects`) start their first subtask."""
+        """New episodes in envs ids (objects drawn with `draw_objects`) start their first
+        subtask (steps [N], root_xy [N, 2]: every env's)."""
         self.subtask[ids] = 0
         self.hold[ids] = 0
         self.done[ids] = False
@@ -142,14 +146,27 @@ class PlanTracker:
         self.end_step[ids] = -1
         for v in self.stats.values():
             v[ids] = 0
-        self.start(ids, steps, root_xy)
+        self.start(self.mask_of(ids), steps, root_xy)
 
-    def begin_at(self, ids: torch.Tensor, sub: torch.Tensor, steps: torch.Tensor, root_xy: torch.Tensor) -> None:
-        """Envs ids (just reset) begin at subtask sub [n] >= 1 instead of 0, the earlier
-        subtasks counted as done (`env.subtask_start_prob`)."""
+    def begin_at(self, ids: torch.Tensor, late: torch.Tensor, sub: torch.Tensor, steps: torch.Tensor,
+                 root_xy: torch.Tensor) -> None:
+        """The rows of envs ids (just reset) where late [n] is set begin at subtask sub [n] >= 1
+        instead of 0, the earlier subtasks counted as done (`env.subtask_start_prob`); steps,
+        root_xy as for `reset`."""
+        sub = torch.where(late, sub, self.subtask[ids])
         self.subtask[ids] = sub
-        self.done[ids] = torch.arange(self.num_subtasks, device=sub.device)[None, :] < sub[:, None]
-        self.start(ids, steps, root_xy)
+        before = torch.arange(self.num_subtasks, device=sub.device)[None, :] < sub[:, None]
+        self.done[ids] = torch.where(late[:, None], before, self.done[ids])
+        mask = torch.zeros_like(self.subtask, dtype=torch.bool)
+        mask[ids] = late
+        if may_any(mask):
+            self.start(mask, steps, root_xy)
+
+    def mask_of(self, ids: torch.Tensor) -> torch.Tensor:
+        """bool [N], True at ids."""
+        mask = torch.zeros_like(self.subtask, dtype=torch.bool)
+        mask[ids] = True
+        return mask
 
     # ------------------------------------------------------------------ results
     def scores(self) -> torch.Tensor:
@@ -170,17 +187,17 @@ class PlanTracker:
                     lh_success=(scores >= 1.0).all(dim=-1), **{k: v.clone() for k, v in self.stats.items()})
 
     def episode_log(self, prog: dict[str, torch.Tensor], ids: torch.Tensor,
-                    terminations: tuple[str, ...], success_ids: torch.Tensor | None = None
+                    terminations: tuple[str, ...], counted: torch.Tensor | None = None
                     ) -> dict[str, torch.Tensor]:
         """Values of the finished episodes ids for the training log, named as IsaacLab's envs
         name theirs for rsl-rl (`Episode_Termination/`, `Episode_Success/`; docs/METRICS.md).
-        Success is logged for success_ids only (default ids; the env leaves out episodes that
-        started mid-task) and not at all when there are none. The episode length is rsl-rl's
-        own `Train/mean_episode_length`."""
+        Success is logged for the rows of ids where counted [n] is set (default all; the env
+        leaves out episodes that started mid-task) and NaN at the others, which the training
+        log skips (a selection would need a host read). The episode length is rsl-rl's own
+        `Train/mean_episode_length`."""
         log = {f"Episode_Termination/{name}": prog[name][ids].float() for name in terminations}
-        success_ids = ids if success_ids is None else success_ids
-        if len(success_ids):
-            log["Episode_Success/lh"] = prog["lh_success"][success_ids].float()
-            for i, s in enumerate(self.plan):
-                log[f"Episode_Success/{i}_{s.skill}"] = prog["score"][success_ids, i]
+        keep = (lambda v: v) if counted is None else (lambda v: torch.where(counted, v, torch.nan))
+        log["Episode_Success/lh"] = keep(prog["lh_success"][ids].float())
+        for i, s in enumerate(self.plan):
+            log[f"Episode_Success/{i}_{s.skill}"] = keep(prog["score"][ids, i])
         return log

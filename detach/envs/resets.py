@@ -75,21 +75,21 @@ class ResetSampler:
         lin = torch.zeros(n, 3, device=self.device)
         ang = torch.zeros(n, 3, device=self.device)
         ref = self._use_reference(n)
-        if bool(ref.any()):
-            m = int(ref.sum())
+        if self.cfg.env.init != "default":  # drawn for all n starts, kept where ref: no host read of ref
+            r1 = ref[:, None]
             if self.reference_sampler is not None:
-                r = self.reference_sampler(m, self.gen)
+                r = self.reference_sampler(n, self.gen)
                 q = r["root_quat"].to(self.device)
-                tilt[ref] = quat_mul(quat_conj(quat_from_yaw(yaw_of(q))), q)
-                height[ref] = r["root_height"].to(self.device)
-                dof[ref] = r["dof_pos"].to(self.device)
-                for key, dst in (("dof_vel", dof_vel), ("root_lin_vel", lin), ("root_ang_vel", ang)):
-                    if key in r:
-                        dst[ref] = r[key].to(self.device)
+                tilt = torch.where(r1, quat_mul(quat_conj(quat_from_yaw(yaw_of(q))), q), tilt)
+                height = torch.where(ref, r["root_height"].to(self.device), height)
+                dof = torch.where(r1, r["dof_pos"].to(self.device), dof)
+                dof_vel, lin, ang = (torch.where(r1, r[key].to(self.device), dst) if key in r else dst
+                                     for key, dst in (("dof_vel", dof_vel), ("root_lin_vel", lin),
+                                                      ("root_ang_vel", ang)))
             else:
-                noise = torch.randn(m, NUM_DOF, generator=self.gen, device=self.gen.device).to(self.device) * 0.05
+                noise = torch.randn(n, NUM_DOF, generator=self.gen, device=self.gen.device).to(self.device) * 0.05
                 rng = torch.as_tensor(dof_ranges(), dtype=torch.float32, device=self.device)
-                dof[ref] = torch.maximum(torch.minimum(noise, rng[:, 1]), rng[:, 0])
+                dof = torch.where(r1, torch.maximum(torch.minimum(noise, rng[:, 1]), rng[:, 0]), dof)
         qpos = self.qpos0.expand(n, -1).clone()
         qvel = torch.zeros(n, self.nv, device=self.device)
         self.character.write_root(qpos, qvel, self.scene.root_qpos_adr, self.scene.root_qvel_adr,
@@ -106,33 +106,33 @@ class ResetSampler:
 
     def mid_task(self, ids: torch.Tensor, objects: torch.Tensor, skill: Skill, target: torch.Tensor,
                  obj_half: torch.Tensor, qpos: torch.Tensor, qvel: torch.Tensor, root_xy: torch.Tensor
-                 ) -> tuple[torch.Tensor, torch.Tensor, MidTaskStart] | None:
+                 ) -> tuple[torch.Tensor, MidTaskStart] | None:
         """Turn a share `env.mid_task_init_prob` of the starts (qpos, qvel, root_xy of envs ids, as
         `sample` made them; changed in place) into `skill`'s mid-task starts, its first subtask
         on objects [n] with fixed target [3]; obj_half [K, 3] the half sizes of every scene
-        object (`SceneIndex.obj_half`). Returns (rows of ids, their objects, the start) or None
-        when no env was drawn."""
-        pick = self._rand(len(ids)) < self.cfg.env.mid_task_init_prob
-        rows = pick.nonzero(as_tuple=False).squeeze(-1)
-        if len(rows) == 0:
-            return None
-        obj = objects[rows]
-        start = skill.mid_task_start(self.obj_rest[obj], obj_half[obj], target.expand(len(rows), 3), self.gen)
+        object (`SceneIndex.obj_half`). Returns (picked [n] bool, the start of every row) or
+        None when the skill has no mid-task start. Starts are made for all n rows and kept
+        where picked: choosing the rows would need a host read."""
+        n = len(ids)
+        pick = self._rand(n) < self.cfg.env.mid_task_init_prob
+        start = skill.mid_task_start(self.obj_rest[objects], obj_half[objects], target.expand(n, 3), self.gen)
         if start is None:
             return None
-        m = len(rows)
-        q, v = qpos[rows], qvel[rows]
-        zeros = torch.zeros(m, 3, device=self.device)
-        upright = torch.tensor([1.0, 0.0, 0.0, 0.0], device=self.device).expand(m, 4)
+        q, v = qpos.clone(), qvel.clone()
+        zeros = torch.zeros(n, 3, device=self.device)
+        upright = torch.tensor([1.0, 0.0, 0.0, 0.0], device=self.device).expand(n, 4)
         self.character.write_root(q, v, self.scene.root_qpos_adr, self.scene.root_qvel_adr, start.root_xy,
                                   start.height, start.yaw, upright, zeros, zeros)
         q[:, torch.as_tensor(self.scene.dof_qpos_adr, device=self.device)] = start.hinges
         v[:, torch.as_tensor(self.scene.dof_qvel_adr, device=self.device)] = 0.0
         for i in self.scene.dynamic:
             o = self.scene.objects[i]
-            sel = obj == i
-            q[sel, o.qpos_adr:o.qpos_adr + 3] = start.obj_pos[sel]
-            q[sel, o.qpos_adr + 3:o.qpos_adr + 7] = start.obj_quat[sel]
-            v[sel, o.qvel_adr:o.qvel_adr + 6] = 0.0
-        qpos[rows], qvel[rows], root_xy[rows] = q, v, start.root_xy
-        return rows, obj, start
+            sel = (objects == i)[:, None]
+            q[:, o.qpos_adr:o.qpos_adr + 3] = torch.where(sel, start.obj_pos, q[:, o.qpos_adr:o.qpos_adr + 3])
+            q[:, o.qpos_adr + 3:o.qpos_adr + 7] = torch.where(sel, start.obj_quat, q[:, o.qpos_adr + 3:o.qpos_adr + 7])
+            v[:, o.qvel_adr:o.qvel_adr + 6] = torch.where(sel, 0.0, v[:, o.qvel_adr:o.qvel_adr + 6])
+        rows = pick[:, None]
+        qpos.copy_(torch.where(rows, q, qpos))
+        qvel.copy_(torch.where(rows, v, qvel))
+        root_xy.copy_(torch.where(rows, start.root_xy, root_xy))
+        return pick, start

@@ -21,6 +21,7 @@ from typing import Callable
 import torch
 
 from detach.config_schema import RewardsCfg
+from detach.host_sync import may_any
 from detach.skills import canonical_name, skill_class, skill_index, skill_names
 from detach.skills.context import SkillContext
 
@@ -68,16 +69,18 @@ class RewardManager:
         return "\n".join(lines)
 
     def compute(self, ctx: SkillContext) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-        """(reward [N], {term: value [N] where active}); terms of other skills are skipped."""
+        """(reward [N], {term: its value [N], NaN in the envs it does not pay}). A skill's terms
+        are left out when no env is on the skill and that is free to know (CPU); on an
+        accelerator they are computed, all NaN then, which the training log skips."""
         total = torch.zeros_like(ctx.dist)
         parts: dict[str, torch.Tensor] = {}
         for name, w in self.active.items():
             mask = ctx.skill == self.skill_of[name]
-            if not bool(mask.any()):
+            if not may_any(mask):
                 continue
             val = self.fns[name](ctx)
             total = total + torch.where(mask, w * val, torch.zeros_like(val))
-            parts[name] = val[mask]
+            parts[name] = torch.where(mask, val, torch.nan)
         power = -self.cfg.power_coeff * ctx.joint_power
         free = torch.arange(ctx.dyn_speed.shape[-1], device=ctx.dyn_speed.device)[None, :] != ctx.held[:, None]
         excess = (ctx.dyn_speed - self.cfg.dyn_obj_speed_threshold).clamp(min=0.0)

@@ -19,6 +19,7 @@ puppet); the humanoid has no oracle.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import torch
 
@@ -58,19 +59,26 @@ class SubtaskStarts:
         """States per subtask index 1..num_subtasks-1."""
         return {k: int((self.subtask == k).sum()) for k in range(1, num_subtasks)}
 
+    @cached_property
+    def by_subtask(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """(table [K, L], count [K]): the states of each of the K subtasks that have any, in
+        the first count[k] places of row k. Made once (it reads the device), so that `draw`
+        reads nothing."""
+        kinds = torch.unique(self.subtask).tolist()
+        rows = [(self.subtask == k).nonzero(as_tuple=False).squeeze(-1) for k in kinds]
+        table = torch.zeros(len(rows), max(len(r) for r in rows), dtype=torch.long, device=self.subtask.device)
+        for i, r in enumerate(rows):
+            table[i, :len(r)] = r
+        return table, torch.tensor([len(r) for r in rows], device=self.subtask.device)
+
     def draw(self, n: int, gen: torch.Generator) -> torch.Tensor:
         """[n] indices of states, uniform over the subtasks that have any, then over their states
         (so a subtask with fewer recorded states is not started less often)."""
-        kinds = torch.unique(self.subtask)
-        pick = kinds[torch.randint(len(kinds), (n,), generator=gen, device=gen.device).to(kinds.device)]
-        out = torch.empty(n, dtype=torch.long, device=self.subtask.device)
-        for k in kinds.tolist():
-            rows = (pick == k).nonzero(as_tuple=False).squeeze(-1)
-            if len(rows):
-                states = (self.subtask == k).nonzero(as_tuple=False).squeeze(-1)
-                r = torch.randint(len(states), (len(rows),), generator=gen, device=gen.device).to(states.device)
-                out[rows] = states[r]
-        return out
+        table, count = self.by_subtask
+        dev = table.device
+        kind = torch.randint(len(count), (n,), generator=gen, device=gen.device).to(dev)
+        u = torch.rand(n, generator=gen, device=gen.device).to(dev)
+        return table[kind, torch.minimum((u * count[kind]).long(), count[kind] - 1)]
 
 
 def record_subtask_starts(env) -> SubtaskStarts:

@@ -38,10 +38,11 @@ class PhysicsBackend(ABC):
         """
 
     @abstractmethod
-    def set_equality(self, ids: torch.Tensor, eq_id: int, active: torch.Tensor,
+    def set_equality(self, mask: torch.Tensor, eq_id: int, active: torch.Tensor,
                      data: torch.Tensor | None = None) -> None:
-        """Switch equality constraint eq_id on/off in simulations ids; optionally set its
-        per-simulation eq_data [n, 12] (e.g. a weld's relative pose)."""
+        """Switch equality constraint eq_id on/off (active [N]) in the simulations where mask
+        [N] is set; optionally set its per-simulation eq_data [N, 12] (e.g. a weld's relative
+        pose). Rows outside mask are ignored: a mask needs no host read to select them."""
 
     # batched views ------------------------------------------------------------------------
     @property

@@ -77,14 +77,14 @@ class MujocoBatchBackend(PhysicsBackend):
         self.batch.forward(idx, stage=_STAGE_VEL)
         self._cache.clear()
 
-    def set_equality(self, ids: torch.Tensor, eq_id: int, active: torch.Tensor,
+    def set_equality(self, mask: torch.Tensor, eq_id: int, active: torch.Tensor,
                      data: torch.Tensor | None = None) -> None:
-        if len(ids) == 0:
+        m = mask.detach().cpu().numpy().astype(bool)
+        if not m.any():
             return
-        idx = ids.detach().cpu().numpy().astype(np.int64)
         if data is not None:
-            self._eq_data[idx, eq_id] = data.detach().cpu().double().numpy()
-        self._np["eq_active"][idx, eq_id] = active.detach().cpu().double().numpy()
+            self._eq_data[m, eq_id] = data.detach().cpu().double().numpy()[m]
+        self._np["eq_active"][m, eq_id] = active.detach().cpu().double().numpy()[m]
         self._cache.pop("eq_active", None)
 
     def write_qpos(self, ids: torch.Tensor, qpos: torch.Tensor) -> None:

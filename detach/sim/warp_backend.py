@@ -221,12 +221,13 @@ class WarpBackend(PhysicsBackend):
         self._run(self._recompute)
         self._cache.clear()
 
-    def set_equality(self, ids: torch.Tensor, eq_id: int, active: torch.Tensor,
+    def set_equality(self, mask: torch.Tensor, eq_id: int, active: torch.Tensor,
                      data: torch.Tensor | None = None) -> None:
-        ids = ids.to(self.device, torch.long)
+        mask = mask.to(self.device, torch.bool)
         if data is not None:
-            self._eq_data[ids, eq_id] = data.to(self.device, torch.float32)
-        self._eq_active[ids, eq_id] = active.to(self.device).bool()
+            self._eq_data[:, eq_id] = torch.where(mask[:, None], data.to(self.device, torch.float32),
+                                                  self._eq_data[:, eq_id])
+        self._eq_active[:, eq_id] = torch.where(mask, active.to(self.device).bool(), self._eq_active[:, eq_id])
         self._cache.pop("eq_active", None)
 
     def write_qpos(self, ids: torch.Tensor, qpos: torch.Tensor) -> None:

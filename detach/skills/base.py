@@ -139,9 +139,11 @@ class Skill:
         return None if sub.fixed_target is None else np.asarray(sub.fixed_target, dtype=np.float64)
 
     # ------------------------------------------------------------------ every step
-    def start(self, ids: torch.Tensor, subtask: torch.Tensor, root_xy: torch.Tensor) -> None:
-        """Envs ids [n] just started one of this skill's subtasks (plan indices subtask [n]),
-        with the pelvis at root_xy [n, 2]."""
+    def start(self, mask: torch.Tensor, subtask: torch.Tensor, root_xy: torch.Tensor) -> None:
+        """The envs in mask [N] just started one of this skill's subtasks (plan indices
+        subtask [N], pelvis at root_xy [N, 2]; rows outside mask are to be left alone). A
+        mask, not indices: selecting the envs would read the device on the host
+        (`detach.host_sync`); `may_any(mask)` guards work worth skipping on a CPU."""
 
     def target(self, ctx: "SkillContext") -> torch.Tensor:
         """World target [N, 3] for envs on this skill (values elsewhere are ignored)."""

@@ -107,7 +107,7 @@ def reach_pose(top_z: torch.Tensor, pelvis_z: float = START_HEIGHT) -> tuple[tor
     arm = 0.53
     cosb = ((sz - (top_z + 0.02)) / arm).clamp(-1.0, 1.0)
     beta = torch.acos(cosb).clamp(0.0, 1.5)
-    q = torch.zeros(len(top_z), 32)
+    q = torch.zeros(len(top_z), 32, device=top_z.device)
     q[:, hinge_index("abdomen_y")] = phi
     q[:, hinge_index("right_shoulder_y")] = -beta - phi
     q[:, hinge_index("left_shoulder_y")] = -beta - phi
@@ -180,9 +180,9 @@ class Carry(Skill):
         slot = self.dyn_slot[ctx.obj.clamp(min=0)]
         return (ctx.held == slot) & (slot >= 0)
 
-    def start(self, ids: torch.Tensor, subtask: torch.Tensor, root_xy: torch.Tensor) -> None:
+    def start(self, mask: torch.Tensor, subtask: torch.Tensor, root_xy: torch.Tensor) -> None:
         if self.carrying is not None:
-            self.carrying[ids] = False
+            self.carrying &= ~mask
 
     def mid_task_start(self, obj_rest, obj_half, target, gen) -> MidTaskStart:
         """One of three starts, drawn per episode: (`APPROACH_SHARE`) standing some way from the
@@ -216,8 +216,8 @@ class Carry(Skill):
         heading = torch.atan2(route[:, 1], route[:, 0])
         box_xy = obj_rest[:, :2] + u[:, None] * route
         yaw = heading + noise
-        hinges, reach = reach_pose((obj_rest[:, 2] + obj_half[:, 2] + lift).cpu())
-        ahead = reach.to(dev) + (obj_half[:, 0] - 0.15).clamp(min=0.05)
+        hinges, reach = reach_pose(obj_rest[:, 2] + obj_half[:, 2] + lift)
+        ahead = reach + (obj_half[:, 0] - 0.15).clamp(min=0.05)
         root_xy = box_xy - torch.stack((yaw.cos(), yaw.sin()), -1) * ahead[:, None]
         # approach: out from the box toward the destination (turned by `side`), facing back
         out = heading + side
@@ -225,9 +225,9 @@ class Carry(Skill):
         stand = obj_rest[:, :2] + torch.stack((out.cos(), out.sin()), -1) * away[:, None]
         root_xy = torch.where(approaching[:, None], stand, root_xy)
         yaw = torch.where(approaching, wrap_angle(out + math.pi + turn), yaw)
-        hinges = torch.where(approaching[:, None].cpu(), torch.zeros_like(hinges), hinges)
+        hinges = torch.where(approaching[:, None], torch.zeros_like(hinges), hinges)
         box = torch.cat((box_xy, (obj_rest[:, 2] + lift)[:, None]), -1)
-        return MidTaskStart(root_xy, yaw, torch.full((n,), START_HEIGHT, device=dev), hinges.to(dev),
+        return MidTaskStart(root_xy, yaw, torch.full((n,), START_HEIGHT, device=dev), hinges,
                             box, quat_from_yaw(heading + torch.where(approaching, 0.0, noise)), held=held)
 
     def update_stats(self, ctx, active, stats) -> None:
@@ -257,8 +257,7 @@ class Carry(Skill):
         ar = torch.arange(n, device=dev)
         normal, depth = cand[ar, k], hd[ar, k]
         top = box[:, 2] + half[:, 2]
-        q_reach, reach = reach_pose(top.cpu())
-        q_reach, reach = q_reach.to(dev), reach.to(dev)
+        q_reach, reach = reach_pose(top)
         stand = box[:, :2] + normal * (reach + (depth - 0.15).clamp(min=0.05))[:, None]
         via = stand + normal * 0.6
         d_stand = (stand - pxy).norm(dim=-1)

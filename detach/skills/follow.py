@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import torch
 
+from detach.host_sync import may_any
 from detach.skills.base import RAND, PlanError, RewardTerm, Skill, Subtask
 from detach.skills.context import OracleCommand, SkillContext
 from detach.skills.registry import register_skill
@@ -81,17 +82,18 @@ class Follow(Skill):
     def bind(self, plan, services) -> None:
         super().bind(plan, services)
         self.traj_id = torch.tensor([s.ref if s.skill == self.name else -2 for s in plan], device=self.device)
+        self.random_paths = any(s.skill == self.name and s.ref == RAND for s in plan)
 
-    def start(self, ids: torch.Tensor, subtask: torch.Tensor, root_xy: torch.Tensor) -> None:
+    def start(self, mask: torch.Tensor, subtask: torch.Tensor, root_xy: torch.Tensor) -> None:
         traj = self.services.trajectory
         tid = self.traj_id[subtask]
-        rand = tid == RAND
-        if bool(rand.any()):
-            traj.load_random(ids[rand], root_xy[rand], self.services.generator)
+        rand = mask & (tid == RAND)
+        if self.random_paths and may_any(rand):
+            traj.load_random(rand, root_xy, self.services.generator)
         for k in traj.fixed:
-            sel = tid == k
-            if bool(sel.any()):
-                traj.load_fixed(ids[sel], k)
+            sel = mask & (tid == k)
+            if may_any(sel):
+                traj.load_fixed(sel, k)
 
     def target(self, ctx: SkillContext) -> torch.Tensor:
         end = self.services.trajectory.end

@@ -148,24 +148,28 @@ class TrajectoryReference:
         self.vertex_dt = torch.full((num_envs,), FIXED_TRAJ_DT, device=device)
         self.t0 = torch.zeros(num_envs, dtype=torch.long, device=device)
 
-    def restart(self, ids: torch.Tensor, steps: torch.Tensor) -> None:
-        """Envs ids start a subtask now (steps [n]: their control step)."""
-        self.t0[ids] = steps
+    def restart(self, mask: torch.Tensor, steps: torch.Tensor) -> None:
+        """The envs in mask [N] start a subtask now (steps [N]: every env's control step)."""
+        self.t0 = torch.where(mask, steps, self.t0)
 
-    def load_random(self, ids: torch.Tensor, start_xy: torch.Tensor, generator: torch.Generator) -> None:
-        heading = (torch.rand(len(ids), generator=generator, device=generator.device) * 2 - 1
+    def load_random(self, mask: torch.Tensor, start_xy: torch.Tensor, generator: torch.Generator) -> None:
+        """New procedural paths from start_xy [N, 2] for the envs in mask [N] (drawn for every
+        env, so that the number drawn needs no host read)."""
+        heading = (torch.rand(len(mask), generator=generator, device=generator.device) * 2 - 1
                    ).to(self.verts.device) * math.pi
         verts, dt = random_trajectories(start_xy, heading, self.cfg, self.rand_duration, generator)
-        self.verts[ids] = pad_to(verts, self.length)
-        self.vertex_dt[ids] = dt
+        self.verts = torch.where(mask[:, None, None], pad_to(verts, self.length), self.verts)
+        self.vertex_dt.masked_fill_(mask, dt)
 
-    def load_fixed(self, ids: torch.Tensor, key: int) -> None:
-        self.verts[ids] = self.fixed[key]
-        self.vertex_dt[ids] = FIXED_TRAJ_DT
+    def load_fixed(self, mask: torch.Tensor, key: int) -> None:
+        """Trajectory `key` of the task for the envs in mask [N]."""
+        self.verts = torch.where(mask[:, None, None], self.fixed[key], self.verts)
+        self.vertex_dt.masked_fill_(mask, FIXED_TRAJ_DT)
 
-    def park(self, ids: torch.Tensor, xy: torch.Tensor) -> None:
-        """A constant reference at xy [n, 2] (subtasks that follow no path)."""
-        self.verts[ids] = xy[:, None, :].expand(-1, self.length, -1)
+    def park(self, mask: torch.Tensor, xy: torch.Tensor) -> None:
+        """A constant reference at xy [N, 2] for the envs in mask [N] (subtasks that follow no
+        path)."""
+        self.verts = torch.where(mask[:, None, None], xy[:, None, :], self.verts)
 
     def reference(self, steps: torch.Tensor, ahead: float | torch.Tensor) -> torch.Tensor:
         """Reference XY [N, 2] `ahead` s from now (or [N, k, 2] for a tensor of times)."""

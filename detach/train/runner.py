@@ -54,6 +54,27 @@ snapshot must not run again: the checkpoint holds its result)."""
 IterationHook = Callable[[int, dict[str, float]], None]
 
 
+
+def ended_values(ended: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]], k: int) -> list[float]:
+    """Values (k = 1: return, 2: length) of the episodes that ended in a rollout, in the order
+    they ended, from (done [N], return [N], length [N]) per step: one host read per rollout,
+    not one per step."""
+    done = torch.stack([e[0] for e in ended])
+    return torch.stack([e[k] for e in ended])[done].tolist()
+
+
+def rollout_means(logs: dict[str, list[torch.Tensor]]) -> dict[str, float]:
+    """A rollout's mean of every env log key (rsl-rl's Logger names: a key without a '/' goes
+    under `Episode/`), NaN values left out (a reward term with no env on its skill at a step:
+    `RewardManager.compute`); keys with no value are left out. One host read per key."""
+    out = {}
+    for key, parts in logs.items():
+        v = torch.cat(parts)
+        v = v[~v.isnan()]
+        if v.numel():
+            out[key if "/" in key else f"Episode/{key}"] = float(v.double().mean())
+    return out
+
 class MetricsSink(Protocol):
     """Where the metrics of every iteration go (the run's log.mcap in a run folder)."""
 
@@ -272,7 +293,8 @@ class DetachRunner(OnPolicyRunner):
                         self.on_stage(stage)
             self.alg.stage = stage
             t0 = time.time()
-            episode_logs: dict[str, list[float]] = {}
+            episode_logs: dict[str, list[torch.Tensor]] = {}
+            ended: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = []
             with torch.inference_mode():
                 check = self.cfg.get("check_for_nan", True)
                 for step in range(self.cfg["num_steps_per_env"]):
@@ -288,15 +310,14 @@ class DetachRunner(OnPolicyRunner):
                     self.alg.process_env_step(obs, rewards, dones, extras)
                     reward_sum += rewards.reshape(-1)
                     length += 1
-                    done_ids = dones.reshape(-1).nonzero().flatten()
-                    if done_ids.numel():
-                        rewards_buf.extend(reward_sum[done_ids].tolist())
-                        lengths_buf.extend(length[done_ids].tolist())
-                        reward_sum[done_ids] = 0
-                        length[done_ids] = 0
+                    done = dones.reshape(-1).bool()
+                    ended.append((done, reward_sum.clone(), length.clone()))
+                    reward_sum.masked_fill_(done, 0.0)
+                    length.masked_fill_(done, 0.0)
                     for key, value in extras.get("log", {}).items():
-                        values = value.flatten().tolist() if torch.is_tensor(value) else [value]
-                        episode_logs.setdefault(key, []).extend(float(v) for v in values)
+                        episode_logs.setdefault(key, []).append(torch.as_tensor(value, dtype=torch.float32).flatten())
+                rewards_buf.extend(ended_values(ended, 1))
+                lengths_buf.extend(ended_values(ended, 2))
                 collect_time = time.time() - t0
                 self.alg.compute_returns(obs)
             t1 = time.time()
@@ -311,8 +332,7 @@ class DetachRunner(OnPolicyRunner):
                     raise NonFiniteError(f"{bad[0]} is {metrics[bad[0]]} after the update of iteration {it}"
                                          f"{f' (and {len(bad) - 1} more)' if len(bad) > 1 else ''}; "
                                          f"the last checkpoint holds the last good weights")
-            metrics.update({k if "/" in k else f"Episode/{k}": statistics.fmean(v)  # rsl-rl's Logger
-                            for k, v in episode_logs.items() if v})
+            metrics.update(rollout_means(episode_logs))
             metrics["Perf/total_fps"] = steps / max(collect_time + learn_time, 1e-9)
             metrics["Perf/collection_time"] = collect_time
             metrics["Perf/learning_time"] = learn_time
