@@ -89,17 +89,20 @@ def test_every_step_reads_the_host_once() -> None:
 
 @pytest.mark.parametrize(("task", "overrides"), [
     ("carry", ("env.character=puppet", "env.mid_task_init_prob=0.6")),  # starts holding the box
+    ("lh1", ("env.character=puppet", "env.subtask_start_prob=0.6")),  # starts at later subtasks
     ("lh1", ("env.character=humanoid",)),
 ])
 def test_resets_add_no_host_read(task: str, overrides: tuple[str, ...]) -> None:
     torch.set_num_threads(1)
-    cfg = resolve(ROOT / f"configs/tasks/{task}.yaml", "mlp",
-                  [*overrides, "env.episode_length=30", "env.init=mixed"], seed=3)
+    cfg = resolve(ROOT / f"configs/tasks/{task}.yaml", "mlp", [*overrides, "env.init=mixed"], seed=3)
     env = make_env(cfg, num_envs=4, verbose=False)
+    env.max_episode_length = 30  # end episodes often (the recording of later starts needed the full length)
     gen = torch.Generator().manual_seed(0)
     sites, per_step, ended = _count_reads(env, lambda: torch.rand(4, env.num_actions, generator=gen) * 2 - 1, 70)
     assert sites == {("envs/lh_env.py", "step")} and set(per_step) == {1}
     assert ended >= 8
+    if "puppet" in overrides[0]:  # the mid-task or later-subtask starts were stepped
+        assert bool(env.started_mid_task.any())
 
 
 @pytest.mark.parametrize(("task", "start"), [("carry", "env.mid_task_init_prob=0.5"),

@@ -205,7 +205,10 @@ class LHEnv(VecEnv):
         if verbose or len(starts) == 0:
             print(recording_summary(starts, len(self.plan), time.perf_counter() - t0)
                   + ("; no episode starts at a later subtask" if len(starts) == 0 else ""), flush=True)
-        return starts if len(starts) else None
+        if len(starts) == 0:
+            return None
+        _ = starts.by_subtask  # built here: it reads the device, which a step's `draw` must not
+        return starts
 
     def _start_at_later_subtasks(self, ids: torch.Tensor, qpos: torch.Tensor, qvel: torch.Tensor,
                                  root_xy: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

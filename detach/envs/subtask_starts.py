@@ -62,8 +62,8 @@ class SubtaskStarts:
     @cached_property
     def by_subtask(self) -> tuple[torch.Tensor, torch.Tensor]:
         """(table [K, L], count [K]): the states of each of the K subtasks that have any, in
-        the first count[k] places of row k. Made once (it reads the device), so that `draw`
-        reads nothing."""
+        the first count[k] places of row k. Made once, when the env is built (it reads the
+        device), so that `draw` reads nothing."""
         kinds = torch.unique(self.subtask).tolist()
         rows = [(self.subtask == k).nonzero(as_tuple=False).squeeze(-1) for k in kinds]
         table = torch.zeros(len(rows), max(len(r) for r in rows), dtype=torch.long, device=self.subtask.device)
