@@ -54,7 +54,6 @@ snapshot must not run again: the checkpoint holds its result)."""
 IterationHook = Callable[[int, dict[str, float]], None]
 
 
-
 def ended_values(ended: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]], k: int) -> list[float]:
     """Values (k = 1: return, 2: length) of the episodes that ended in a rollout, in the order
     they ended, from (done [N], return [N], length [N]) per step: one host read per rollout,
