@@ -31,6 +31,14 @@ def may_any(mask: torch.Tensor) -> bool:
     return bool(mask.any()) if reads_are_free(mask) else True
 
 
+def rows_at(n: int, ids: torch.Tensor, values: torch.Tensor, fill: float | bool = 0) -> torch.Tensor:
+    """[n, ...]: values [len(ids), ...] at rows ids, fill elsewhere. Widening a subset to all
+    rows by scatter needs no host read; narrowing all rows to a subset by mask would."""
+    out = torch.full((n, *values.shape[1:]), fill, dtype=values.dtype, device=values.device)
+    out[ids] = values
+    return out
+
+
 @contextmanager
 def deferred_reads() -> Iterator[None]:
     """Within this block, CPU tensors are treated as an accelerator's: `may_any` is True."""

@@ -40,7 +40,7 @@ import torch
 from detach.character.actions import pd_actions, pd_targets
 from detach.character.base import Character, ScriptedCommand, register_character
 from detach.character.body import NUM_DOF, START_HEIGHT
-from detach.host_sync import may_any
+from detach.host_sync import may_any, rows_at
 from detach.torch_math import point_box_distance, quat_conj, quat_mul, quat_rotate, rotate_yaw, wrap_angle
 
 ROOT_JOINTS: tuple[str, ...] = ("root_x", "root_y", "root_z", "root_yaw")
@@ -199,12 +199,8 @@ class Puppet(Character):
                 self._weld(sel, k, state.root_pos, state.root_quat, dpos[:, k], dquat[:, k])
 
     def hold(self, ids, slots, root_pos, root_quat, obj_pos, obj_quat) -> None:
-        n, d = self.num_envs, self.device
-        slot = torch.full((n,), -1, dtype=torch.long, device=d)
-        slot[ids] = slots
-        rows = [torch.zeros(n, *t.shape[1:], dtype=t.dtype, device=d) for t in (root_pos, root_quat, obj_pos, obj_quat)]
-        for full, part in zip(rows, (root_pos, root_quat, obj_pos, obj_quat)):
-            full[ids] = part
+        slot = rows_at(self.num_envs, ids, slots, -1)
+        rows = [rows_at(self.num_envs, ids, t) for t in (root_pos, root_quat, obj_pos, obj_quat)]
         for k in range(len(self.movable)):
             sel = slot == k
             if may_any(sel):

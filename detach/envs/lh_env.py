@@ -31,7 +31,7 @@ from detach.envs.resets import ReferenceSampler, ResetSampler
 from detach.envs.rewards import RewardManager
 from detach.envs.subtask_starts import RECORD_ENVS, SubtaskStarts, recording_summary, record_subtask_starts
 from detach.envs.terminations import Terminations
-from detach.host_sync import may_any
+from detach.host_sync import may_any, rows_at
 from detach.sim import make_backend, sim_settings
 from detach.sim.raster import Raster
 from detach.sim.state import SceneIndex, SimState, read_state
@@ -254,8 +254,7 @@ class LHEnv(VecEnv):
         for slot, *pose in holds:
             if self.character.can_hold and may_any(slot >= 0):
                 self.character.hold(ids, slot, *pose)
-        xy = torch.zeros(self.num_envs, 2, device=self.device)
-        xy[ids] = root_xy
+        xy = rows_at(self.num_envs, ids, root_xy)
         self.tracker.reset(ids, self.steps, xy)
         if late is not None:
             rows, pick = late

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import torch
 
-from detach.host_sync import may_any
+from detach.host_sync import may_any, rows_at
 from detach.sim.state import SceneIndex, SimState
 from detach.skills import Skill, Subtask, skill_class, skill_names
 from detach.skills.context import SkillContext, SkillServices
@@ -146,7 +146,8 @@ class PlanTracker:
         self.end_step[ids] = -1
         for v in self.stats.values():
             v[ids] = 0
-        self.start(self.mask_of(ids), steps, root_xy)
+        every = torch.ones_like(ids, dtype=torch.bool)
+        self.start(rows_at(len(self.subtask), ids, every, False), steps, root_xy)
 
     def begin_at(self, ids: torch.Tensor, late: torch.Tensor, sub: torch.Tensor, steps: torch.Tensor,
                  root_xy: torch.Tensor) -> None:
@@ -157,16 +158,9 @@ class PlanTracker:
         self.subtask[ids] = sub
         before = torch.arange(self.num_subtasks, device=sub.device)[None, :] < sub[:, None]
         self.done[ids] = torch.where(late[:, None], before, self.done[ids])
-        mask = torch.zeros_like(self.subtask, dtype=torch.bool)
-        mask[ids] = late
+        mask = rows_at(len(self.subtask), ids, late, False)
         if may_any(mask):
             self.start(mask, steps, root_xy)
-
-    def mask_of(self, ids: torch.Tensor) -> torch.Tensor:
-        """bool [N], True at ids."""
-        mask = torch.zeros_like(self.subtask, dtype=torch.bool)
-        mask[ids] = True
-        return mask
 
     # ------------------------------------------------------------------ results
     def scores(self) -> torch.Tensor:
