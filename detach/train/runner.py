@@ -54,12 +54,14 @@ snapshot must not run again: the checkpoint holds its result)."""
 IterationHook = Callable[[int, dict[str, float]], None]
 
 
-def ended_values(ended: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]], k: int) -> list[float]:
-    """Values (k = 1: return, 2: length) of the episodes that ended in a rollout, in the order
-    they ended, from (done [N], return [N], length [N]) per step: one host read per rollout,
-    not one per step."""
+def ended_episodes(ended: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]
+                   ) -> tuple[list[float], list[float]]:
+    """(returns, lengths) of the episodes that ended in a rollout, in the order they ended,
+    from (done [N], return [N], length [N]) per step: one host read per rollout, not one per
+    step."""
     done = torch.stack([e[0] for e in ended])
-    return torch.stack([e[k] for e in ended])[done].tolist()
+    returns, lengths = torch.stack([torch.stack(e[1:]) for e in ended], dim=1)[:, done].tolist()
+    return returns, lengths
 
 
 def rollout_means(logs: dict[str, list[torch.Tensor]]) -> dict[str, float]:
@@ -315,8 +317,9 @@ class DetachRunner(OnPolicyRunner):
                     length.masked_fill_(done, 0.0)
                     for key, value in extras.get("log", {}).items():
                         episode_logs.setdefault(key, []).append(torch.as_tensor(value, dtype=torch.float32).flatten())
-                rewards_buf.extend(ended_values(ended, 1))
-                lengths_buf.extend(ended_values(ended, 2))
+                returns, lengths = ended_episodes(ended)
+                rewards_buf.extend(returns)
+                lengths_buf.extend(lengths)
                 collect_time = time.time() - t0
                 self.alg.compute_returns(obs)
             t1 = time.time()
