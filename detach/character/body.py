@@ -148,6 +148,18 @@ _BODIES: tuple[tuple[str, str, tuple[float, float, float], tuple], ...] = (
      ((_CAP, (0.05,), ((0.0, 0.0, -0.04), (0.0, 0.0, -0.35))),)),
     ("left_foot", "left_shin", (0.0, 0.0, -0.41), ((_BOX, (0.1, 0.045, 0.0325), (0.045, 0.0, -0.0425)),)),
 )
+
+
+def _foot_to_sole() -> float:
+    """Height (m) of a foot body's origin above its sole: the bottom of its box geom."""
+    (_gtype, size, pos), = dict((b[0], b[3]) for b in _BODIES)["right_foot"]
+    return -(pos[2] - size[2])
+
+
+FOOT_TO_SOLE = _foot_to_sole()
+"""Height of a foot body's origin above its sole, metres (0.075)."""
+FEET: tuple[str, ...] = ("right_foot", "left_foot")
+
 _PELVIS_GEOMS = ((_CAP, (0.09,), ((0.0, -0.07, 0.0), (0.0, 0.07, 0.0))),)
 _AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
 
