@@ -44,7 +44,7 @@ def elevation(ctx: SkillContext) -> torch.Tensor:
 
 FEET_KERNEL = 5.0
 """feet_height = exp(-FEET_KERNEL * err^2), err (m) the soles' mean height minus the top's:
-0.29 at 0.5 m below, 0.64 at 0.3 m. (TokenHSI's 50 for a walking humanoid pays nothing at
+0.29 at 0.5 m below, 0.64 at 0.3 m. (TokenHSI's 50, for a walking humanoid, pays 0.01 at
 0.3 m below, and a puppet that raises its pelvis by an action would find no slope.)"""
 REACH = 0.5
 """feet_height pays while the pelvis is within the object's XY half diagonal plus this (m)."""
