@@ -46,7 +46,12 @@ def _terminate_during(target: str, out: Path, *extra: str) -> tuple[int, str, Ru
             if "SLOW STEP" in line or time.time() > deadline:
                 break
         proc.send_signal(signal.SIGTERM)
-        _out, err = proc.communicate(timeout=60)
+        try:
+            _out, err = proc.communicate(timeout=60)
+        except subprocess.TimeoutExpired:  # say where it hung: its output so far
+            proc.kill()
+            out, err = proc.communicate()
+            raise AssertionError(f"still running 60 s after SIGTERM\nstdout:\n{out[-3000:]}\nstderr:\n{err[-3000:]}")
     finally:
         proc.kill()
     (run,) = find_runs(out)
