@@ -128,8 +128,8 @@ class ResetSampler:
         for i in self.scene.dynamic:
             o = self.scene.objects[i]
             sel = (objects == i)[:, None]
-            q[:, o.qpos_adr:o.qpos_adr + 3] = torch.where(sel, start.obj_pos, q[:, o.qpos_adr:o.qpos_adr + 3])
-            q[:, o.qpos_adr + 3:o.qpos_adr + 7] = torch.where(sel, start.obj_quat, q[:, o.qpos_adr + 3:o.qpos_adr + 7])
+            pose = slice(o.qpos_adr, o.qpos_adr + 7)  # free joint: position, then quaternion
+            q[:, pose] = torch.where(sel, torch.cat((start.obj_pos, start.obj_quat), -1), q[:, pose])
             v[:, o.qvel_adr:o.qvel_adr + 6] = torch.where(sel, 0.0, v[:, o.qvel_adr:o.qvel_adr + 6])
         rows = pick[:, None]
         qpos.copy_(torch.where(rows, q, qpos))

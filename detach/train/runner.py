@@ -76,6 +76,7 @@ def rollout_means(logs: dict[str, list[torch.Tensor]]) -> dict[str, float]:
             out[key if "/" in key else f"Episode/{key}"] = float(v.double().mean())
     return out
 
+
 class MetricsSink(Protocol):
     """Where the metrics of every iteration go (the run's log.mcap in a run folder)."""
 
