@@ -1,0 +1,40 @@
+"""Where does a policy go in LH1's Follow subtask? Every 30 control steps (8 envs, mean actions):
+the median pelvis XY, its median distance to the path (the success rule's 0.3 m) and to the
+moving reference point, the share of steps on the path so far, and the share still in Follow.
+
+    python results/laptop/diagnosis/lh1_follow_rollout.py RUN_DIR CHECKPOINT.pt
+"""
+import sys
+from pathlib import Path
+
+import torch
+
+from detach.envs.lh_env import make_env
+from detach.runs.folder import RunFolder
+from detach.runs.policy import load_policy
+from detach.runs.session import eval_config
+from detach.skills.trajectories import distance_to_polyline
+from detach.train.setup import seed_everything
+
+run = RunFolder(Path(sys.argv[1]))
+cfg = eval_config(run.config(), Path("configs/tasks/lh1.yaml"))
+seed_everything(1)
+env = make_env(cfg, num_envs=8, device="cpu", eval_mode=True)
+actor, _ = load_policy(cfg, env, Path(sys.argv[2]))
+obs = env.get_observations()
+on = torch.zeros(8)
+steps = torch.zeros(8)
+with torch.no_grad():
+    for t in range(450):
+        obs, *_ = env.step(actor(obs))
+        ctx = env.context()
+        xy = ctx.state.root_pos[:, :2]
+        in_follow = ctx.subtask == 0
+        d_path = distance_to_polyline(xy, env.services.trajectory.verts)
+        on += (in_follow & (d_path <= 0.3)).float()
+        steps += in_follow.float()
+        if t % 30 == 29:
+            d_ref = (ctx.ref_xy - xy).norm(dim=-1)
+            print(f"t{t + 1}: pelvis {xy.median(0).values.tolist()} path {d_path.median():.2f} m "
+                  f"ref {d_ref.median():.2f} m on-path {(on / steps.clamp(min=1)).median():.2f} "
+                  f"in follow {in_follow.float().mean():.2f}", flush=True)
