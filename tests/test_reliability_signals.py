@@ -50,8 +50,9 @@ def _terminate_during(target: str, out: Path, *extra: str) -> tuple[int, str, Ru
             _out, err = proc.communicate(timeout=60)
         except subprocess.TimeoutExpired:  # say where it hung: its output so far
             proc.kill()
-            out, err = proc.communicate()
-            raise AssertionError(f"still running 60 s after SIGTERM\nstdout:\n{out[-3000:]}\nstderr:\n{err[-3000:]}")
+            stdout, stderr = proc.communicate()
+            raise AssertionError(f"still running 60 s after SIGTERM\nstdout:\n{stdout[-3000:]}\n"
+                                 f"stderr:\n{stderr[-3000:]}")
     finally:
         proc.kill()
     (run,) = find_runs(out)

@@ -16,14 +16,17 @@ from detach.runs.session import eval_config
 from detach.skills.trajectories import distance_to_polyline
 from detach.train.setup import seed_everything
 
+NUM_ENVS = 8
+
 run = RunFolder(Path(sys.argv[1]))
 cfg = eval_config(run.config(), Path("configs/tasks/lh1.yaml"))
 seed_everything(1)
-env = make_env(cfg, num_envs=8, device="cpu", eval_mode=True)
+env = make_env(cfg, num_envs=NUM_ENVS, device="cpu", eval_mode=True)
 actor, _ = load_policy(cfg, env, Path(sys.argv[2]))
 obs = env.get_observations()
-on = torch.zeros(8)
-steps = torch.zeros(8)
+threshold = cfg.env.success_threshold  # the Follow success rule's distance to the path
+on = torch.zeros(NUM_ENVS)
+steps = torch.zeros(NUM_ENVS)
 with torch.no_grad():
     for t in range(450):
         obs, *_ = env.step(actor(obs))
@@ -31,7 +34,7 @@ with torch.no_grad():
         xy = ctx.state.root_pos[:, :2]
         in_follow = ctx.subtask == 0
         d_path = distance_to_polyline(xy, env.services.trajectory.verts)
-        on += (in_follow & (d_path <= 0.3)).float()
+        on += (in_follow & (d_path <= threshold)).float()
         steps += in_follow.float()
         if t % 30 == 29:
             d_ref = (ctx.ref_xy - xy).norm(dim=-1)
