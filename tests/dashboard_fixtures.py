@@ -232,7 +232,8 @@ class HeadlessClient:
                                                                max_output_size=size))
                 with self.lock:
                     self.bytes_received += len(frame)
-                    for m in inner["messages"]:
+                for m in inner["messages"]:  # one at a time, as a browser shows them
+                    with self.lock:
                         self.messages_received += 1
                         self._apply(m)
         except Exception:  # noqa: BLE001 - the connection closed
@@ -255,22 +256,32 @@ class HeadlessClient:
                                    "value": m.get("value")}
 
     # --- looking -------------------------------------------------------------------------
-    def find(self, label: str, kind: str | None = None) -> str:
-        """uuid of the (last created) element with this label (and message type)."""
-        with self.lock:
-            found = [u for u, e in self.elements.items() if e["props"].get("label") == label
-                     and (kind is None or e["type"] == kind)]
-        if not found:
-            raise KeyError(f"no GUI element labelled {label!r}")
-        return found[-1]
+    def find(self, label: str, kind: str | None = None, timeout: float = 20.0) -> str:
+        """uuid of the (last created) element with this label (and message type), waiting up
+        to `timeout` s for it: the server's messages arrive in several frames, so a panel
+        built late (the tables' "Pool") may not have reached this client yet."""
+        import time
+
+        deadline = time.monotonic() + timeout
+        while True:
+            with self.lock:
+                found = [u for u, e in self.elements.items() if e["props"].get("label") == label
+                         and (kind is None or e["type"] == kind)]
+            if found:
+                return found[-1]
+            if time.monotonic() >= deadline:
+                raise KeyError(f"no GUI element labelled {label!r}")
+            time.sleep(0.05)
 
     def value(self, label: str) -> Any:
+        uuid = self.find(label)  # outside the lock: the reader adds it
         with self.lock:
-            return self.elements[self.find(label)]["value"]
+            return self.elements[uuid]["value"]
 
     def props(self, label: str) -> dict[str, Any]:
+        uuid = self.find(label)  # outside the lock: the reader adds it
         with self.lock:
-            return dict(self.elements[self.find(label)]["props"])
+            return dict(self.elements[uuid]["props"])
 
     def text(self) -> str:
         """Every markdown and HTML text currently shown to this client."""

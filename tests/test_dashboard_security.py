@@ -149,7 +149,7 @@ def test_values_outside_the_options_are_refused(runs: Path, sleeper) -> None:
 
 def _has(client: HeadlessClient, label: str) -> bool:
     try:
-        client.find(label)
+        client.find(label, timeout=0.0)
         return True
     except KeyError:
         return False

@@ -88,6 +88,27 @@ def test_controls_refuse_values_outside_their_options(runs: Path) -> None:
         server.stop()
 
 
+def test_a_slow_browser_reaches_controls_built_after_the_first_panels(
+        runs: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """CI once set "Pool" (built after the first 30 elements) before its message arrived; a
+    client that takes 20 ms per message must still reach it."""
+    applied = HeadlessClient._apply
+
+    def slowly(self, m):
+        time.sleep(0.02)
+        applied(self, m)
+
+    monkeypatch.setattr(HeadlessClient, "_apply", slowly)
+    server, dashboard, url = start_dashboard(runs)
+    client = _connect(url, dashboard, 1)
+    try:
+        client.set("Pool", "everything")
+        assert client.value("Pool") == "everything"
+    finally:
+        client.close()
+        server.stop()
+
+
 def _without_episodes(runs: Path) -> Path:
     """A copy of the first run whose log has the scene and metrics but no frames."""
     src = sorted(runs.iterdir())[0]
