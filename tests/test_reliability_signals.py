@@ -21,12 +21,18 @@ from detach.runs.folder import RunFolder, find_runs, owner_alive
 from tests.test_runner_cli import FOLLOW, ROOT, TINY
 
 SLOW_STEP = """
-import sys, time
+import signal, sys, time
 import detach.runs.session as session
 
 def slow(*_args, **_kwargs):
+    # The kernel hands a process's SIGTERM to any thread; CPython then runs the handler in the
+    # main thread at its next bytecode, so one 120 s sleep hid it for 120 s whenever another
+    # thread (the heartbeat's) got it: a flake once. Blocked here, it always goes to another
+    # thread, and the step returns to Python every 0.1 s as real start-up work does.
+    signal.pthread_sigmask(signal.SIG_BLOCK, [signal.SIGTERM])
     print("SLOW STEP", flush=True)
-    time.sleep(120)
+    for _ in range(1200):
+        time.sleep(0.1)
 
 session.{target} = slow
 from detach import cli
