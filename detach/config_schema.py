@@ -317,9 +317,9 @@ class TrainCfg:
     sample count outweighs the new task's). Restarted ones change what the source policy does
     with the inputs it learned from."""
     init_at_random_ep_len: bool = True
-    """Start training with each environment at a random step of its first episode (rsl-rl's
-    `init_at_random_ep_len`, as IsaacLab and legged_gym train), so that episodes end at
-    different iterations. Off, all environments start together and, where nothing ends an
+    """Start training, and a resumed run's training, with each environment at a random step of
+    its first episode (rsl-rl's `init_at_random_ep_len`, as IsaacLab and legged_gym train), so
+    that episodes end at different iterations. Off, all environments start together and, where nothing ends an
     episode early (Carry's 1200 steps = 37 PPO iterations of 32 steps), every iteration's
     batch comes from one phase of the same episodes: the approach to the box only in the
     first of each 37 iterations."""

@@ -36,3 +36,18 @@ def test_a_training_run_passes_the_setting_to_the_runner(tmp_path: Path, monkeyp
         init_at_random_ep_len))
     assert cli.main(["train", "follow", "--model", "mlp", "--runs", str(tmp_path), "--no-eval", *TINY]) == 0
     assert seen == [True]  # the default
+
+
+def test_a_resumed_run_spreads_its_fresh_episodes_too(tmp_path: Path) -> None:
+    """A resumed run rebuilds its environments, all at step 0: unspread, every batch of the
+    resumed run came from one phase of synchronised episodes again (a resumed Carry run's
+    curves fell at the resume point and its episodes all ran to the limit together)."""
+    cfg = complete_run_config(resolve(ROOT / "configs/tasks/carry.yaml", "mlp", TINY))
+    _env, first = build_runner(cfg, tmp_path, "cpu", progress=False)
+    first.learn(1, init_at_random_ep_len=True)
+    (checkpoint,) = tmp_path.glob("model_*.pt")
+    env, runner = build_runner(cfg, tmp_path, "cpu", progress=False)
+    assert runner.load_checkpoint(checkpoint) == 1
+    runner.learn(2, init_at_random_ep_len=True)
+    steps = env.episode_length_buf.tolist()
+    assert len(set(steps)) > 4 and max(steps) < 600, steps

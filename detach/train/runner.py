@@ -254,7 +254,7 @@ class DetachRunner(OnPolicyRunner):
         start = self.completed_iteration + 1
         if self.is_distributed:  # torchrun: rank 0's weights, loaded or resumed after __init__'s broadcast
             self.alg.broadcast_parameters()
-        if init_at_random_ep_len and start == 0:
+        if init_at_random_ep_len:  # new or resumed, the env was just built: all episodes at step 0
             self.env.episode_length_buf.copy_(torch.randint_like(
                 self.env.episode_length_buf, high=int(self.env.max_episode_length)))
         previous = {sig: signal.signal(sig, self._request_stop)
