@@ -319,10 +319,10 @@ class TrainCfg:
     init_at_random_ep_len: bool = True
     """Start training, and a resumed run's training, with each environment at a random step of
     its first episode (rsl-rl's `init_at_random_ep_len`, as IsaacLab and legged_gym train), so
-    that episodes end at different iterations. Off, all environments start together and, where nothing ends an
-    episode early (Carry's 1200 steps = 37 PPO iterations of 32 steps), every iteration's
-    batch comes from one phase of the same episodes: the approach to the box only in the
-    first of each 37 iterations."""
+    that episodes end at different iterations. Off, all environments start together and,
+    where nothing ends an episode early (Carry's 1200 steps = 37 PPO iterations of 32 steps),
+    every iteration's batch comes from one phase of the same episodes: the approach to the box
+    only in the first of each 37 iterations."""
     per_objective_advantage_norm: bool = False
     """With a multi-head critic (CML), normalise the advantage of each objective before their
     weighted sum; otherwise the weighted sum is normalised as one."""
