@@ -256,22 +256,20 @@ class HeadlessClient:
                                    "value": m.get("value")}
 
     # --- looking -------------------------------------------------------------------------
+    def _labelled(self, label: str, kind: str | None) -> list[str]:
+        with self.lock:
+            return [u for u, e in self.elements.items() if e["props"].get("label") == label
+                    and (kind is None or e["type"] == kind)]
+
     def find(self, label: str, kind: str | None = None, timeout: float = 20.0) -> str:
         """uuid of the (last created) element with this label (and message type), waiting up
         to `timeout` s for it: the server's messages arrive in several frames, so a panel
         built late (the tables' "Pool") may not have reached this client yet."""
-        import time
-
-        deadline = time.monotonic() + timeout
-        while True:
-            with self.lock:
-                found = [u for u, e in self.elements.items() if e["props"].get("label") == label
-                         and (kind is None or e["type"] == kind)]
-            if found:
-                return found[-1]
-            if time.monotonic() >= deadline:
-                raise KeyError(f"no GUI element labelled {label!r}")
-            time.sleep(0.05)
+        try:
+            self.wait_for(lambda: self._labelled(label, kind), timeout, what=f"{label!r}")
+        except AssertionError:
+            raise KeyError(f"no GUI element labelled {label!r}") from None
+        return self._labelled(label, kind)[-1]
 
     def value(self, label: str) -> Any:
         uuid = self.find(label)  # outside the lock: the reader adds it
@@ -294,11 +292,10 @@ class HeadlessClient:
         import time
 
         deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if predicate():
-                return
+        while not predicate():  # checked at least once, so a timeout of 0 only looks
+            if time.monotonic() >= deadline:
+                raise AssertionError(f"timed out after {timeout} s waiting for {what}")
             time.sleep(0.05)
-        raise AssertionError(f"timed out after {timeout} s waiting for {what}")
 
     # --- acting ---------------------------------------------------------------------------
     def set(self, label: str, value: Any, **props: Any) -> None:
