@@ -215,3 +215,23 @@ def test_a_carried_boxs_goal_stays_put_while_the_character_turns_and_walks() -> 
     turned = (yaw_of(ctx.state.root_quat) - yaw_of(st.root_quat)).abs()
     assert bool((turned[still] > 0.5).all())
     assert torch.allclose(ctx.goal[still], first[still], atol=1e-5)
+
+
+def test_a_grasp_is_taken_only_where_the_skill_holds_objects() -> None:
+    """The puppet's grasp serves Carry alone: a Climb policy that could grasp lifted the box it
+    was to climb and flew it away (the climb point moves with the box)."""
+    env, ar, box, st, held = _started(48)
+    hands = st.body_pos[:, env.index.hands]
+    near = point_box_distance(hands, st.obj_pos[ar, box][:, None], st.obj_quat[ar, box][:, None],
+                              env.index.obj_half[box][:, None]).max(-1).values < GRASP_HAND_DIST
+    reachable = ~held & near
+    assert int(reachable.sum()) >= 2
+    a = torch.zeros(env.num_envs, env.num_actions)
+    a[:, GRASP_ACTION] = 1.0
+    refuse = torch.zeros(env.num_envs, dtype=torch.bool)
+    refuse[torch.nonzero(reachable).flatten()[::2]] = True
+    env.character.pre_step(a, st, ~refuse)
+    now = env.character.held_object() >= 0
+    assert not bool(now[refuse].any())                   # refused, and held boxes let go
+    assert bool(now[reachable & ~refuse].all())          # taken where the skill holds
+    assert torch.equal(now[held & ~refuse], held[held & ~refuse])

@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from detach import cli
+from detach.character.puppet import GRASP_ACTION
 from detach.config import resolve
 from detach.envs.lh_env import make_env
 from detach.train.runner import rollout_means
@@ -89,3 +90,26 @@ def test_a_start_the_oracle_cannot_make_is_a_config_error(tmp_path: Path, capsys
     err = capsys.readouterr().err
     assert rc == 2 and "env.subtask_start_prob" in err and why in err
     assert not any(tmp_path.iterdir())
+
+
+def test_a_box_held_into_climb_is_let_go(late_env) -> None:
+    """Carry's transition may fire with the box still held; Climb must not keep it (a Climb
+    policy that held the box it was to climb carried it away: results/laptop/README.md)."""
+    env = late_env
+    sub = env.tracker.subtask.clone()
+    box = env.plan[1].obj
+    slot = env.dyn_slot[box]
+    ids = torch.nonzero((sub == 1) | (sub == 2)).flatten()
+    assert bool((sub[ids] == 1).any()) and bool((sub[ids] == 2).any())
+    st = env.state
+    env.character.hold(ids, slot.expand(len(ids)), st.root_pos[ids], st.root_quat[ids],
+                       st.obj_pos[ids, box], st.obj_quat[ids, box])
+    a = torch.zeros(env.num_envs, env.num_actions)
+    a[:, GRASP_ACTION] = 1.0
+    env.step(a)
+    now = env.character.held_object()
+    still = env.episode_length_buf > 0
+    climbing, carrying = ids[(sub[ids] == 2) & still[ids]], ids[(sub[ids] == 1) & still[ids]]
+    assert len(climbing) and len(carrying)
+    assert bool((now[climbing] == -1).all())
+    assert bool((now[carrying] == slot).all())

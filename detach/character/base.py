@@ -122,8 +122,10 @@ class Character(ABC):
     def reset(self, ids: torch.Tensor) -> None:
         """Envs ids start a new episode (the backend has reset their constraints)."""
 
-    def pre_step(self, actions: torch.Tensor, state: CharacterState) -> None:
-        """Before physics, with the clamped actions and the state read after the last step."""
+    def pre_step(self, actions: torch.Tensor, state: CharacterState, may_hold: torch.Tensor) -> None:
+        """Before physics, with the clamped actions and the state read after the last step;
+        may_hold [N] bool: the envs whose current skill allows holding an object
+        (`Skill.holds_objects`); a character with a grasp refuses and releases elsewhere."""
 
     def held_object(self) -> torch.Tensor:
         """[N] slot of the movable object each env holds by a constraint, -1 for none."""

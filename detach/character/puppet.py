@@ -29,7 +29,9 @@ own frame; 0 inside). It stays attached until the grasp action drops below `RELE
 a grasp whose mean is above 0 from being dropped by exploration noise. With a release at 0, a
 mean of 0.45 and std 0.3 let go at 7% of the steps; with a release at -0.5, the mean of about
 0.1 that Carry training starts from let go at 2.3% (held boxes fell within 1.4 s on average);
-at -0.9 it is 0.04%. Letting go is a deliberate action. One object at a time.
+at -0.9 it is 0.04%. Letting go is a deliberate action. One object at a time, and only during
+a subtask whose skill holds objects (`Skill.holds_objects`: Carry); under any other skill the
+env refuses the grasp and lets a held object go.
 """
 
 from __future__ import annotations
@@ -175,19 +177,20 @@ class Puppet(Character):
     def held_object(self) -> torch.Tensor:
         return self.grasp_obj
 
-    def pre_step(self, actions: torch.Tensor, state) -> None:
-        """The grasp rule (module docstring): weld on request when both hands are near.
-        Masks throughout: no host read where that is not free (`detach.host_sync`)."""
+    def pre_step(self, actions: torch.Tensor, state, may_hold: torch.Tensor) -> None:
+        """The grasp rule (module docstring): weld on request when both hands are near, only
+        where `may_hold`; elsewhere a held object is let go. Masks throughout: no host read
+        where that is not free (`detach.host_sync`)."""
         if not self.movable:
             return
         g = actions[:, GRASP_ACTION]
-        release = (self.grasp_obj >= 0) & (g < RELEASE_BELOW)
+        release = (self.grasp_obj >= 0) & ((g < RELEASE_BELOW) | ~may_hold)
         if may_any(release):
             off = torch.zeros(self.num_envs, device=self.device)
             for k, obj in enumerate(self.movable):
                 self.backend.set_equality(release & (self.grasp_obj == k), obj.link_eq, off)
             self.grasp_obj.masked_fill_(release, -1)
-        cand = (g > 0.0) & (self.grasp_obj < 0)
+        cand = (g > 0.0) & (self.grasp_obj < 0) & may_hold
         if not may_any(cand):
             return
         dpos, dquat = state.obj_pos[:, self.movable_index], state.obj_quat[:, self.movable_index]

@@ -133,7 +133,7 @@ class LHEnv(VecEnv):
 
     def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
         a = actions.to(self.device, torch.float32).clamp(-1.0, 1.0)
-        self.character.pre_step(a, self.state)
+        self.character.pre_step(a, self.state, self.tracker.may_hold())
         self.backend.step(self.character.controls(a, self.backend.qpos), self.substeps)
         self.episode_length_buf += 1
         self.steps += 1

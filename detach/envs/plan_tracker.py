@@ -38,6 +38,7 @@ class PlanTracker:
                 self.skills[i] = skill_class(name)()
                 self.skills[i].bind(plan, services)
         self.follows_path = torch.tensor([skill_class(name).follows_path for name in names], device=d)
+        self.holds_objects = torch.tensor([skill_class(name).holds_objects for name in names], device=d)
         self.num_subtasks = s
         z = lambda *shape, dtype=torch.long: torch.zeros(*shape, dtype=dtype, device=d)  # noqa: E731
         self.subtask, self.hold = z(n), z(n)
@@ -52,6 +53,10 @@ class PlanTracker:
         self._now_and_next = torch.tensor([0.0, services.dt], device=d)
 
     # ------------------------------------------------------------------ per step
+    def may_hold(self) -> torch.Tensor:
+        """[N] bool: the current subtask's skill lets the character hold objects."""
+        return self.holds_objects[self.tensors.skill[self.subtask]]
+
     def context(self, st: SimState, steps: torch.Tensor, held: torch.Tensor, joint_power_weight: float
                 ) -> SkillContext:
         """The skills' view of this step, with each env's target and distance filled in."""

@@ -122,6 +122,7 @@ class Carry(Skill):
     motion_labels = ("carry", "walk")
     sources = ("tarpos",)
     needs_object = True
+    holds_objects = True
     stats = {"grasped": torch.bool}
     reward_terms = {"walk_to_box": RewardTerm(walk_to_box, 0.2), "hands_on_box": RewardTerm(hands_on_box, 0.1),
                     "box_height": RewardTerm(box_height, 0.2), "box_to_target": RewardTerm(box_to_target, 0.5)}
