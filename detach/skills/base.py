@@ -107,11 +107,11 @@ class Skill:
     needs_object: ClassVar[bool] = False
     """`target_object` must name a scene object (checked by `compile_entry`)."""
     follows_path: ClassVar[bool] = False
+    """Its subtasks track the trajectory reference (observations show the path ahead)."""
     holds_objects: ClassVar[bool] = False
     """The character may grasp objects during its subtasks. Under any other skill a grasp
     request is refused and a held object let go: a Climb policy that could lift the box it
     is to climb carried it away instead (the climb point moves with the box)."""
-    """Its subtasks track the trajectory reference (observations show the path ahead)."""
     stats: ClassVar[dict[str, torch.dtype]] = {}
     """Per-subtask statistics [N, S] it accumulates, by name and dtype (zeroed at reset)."""
     termination_names: ClassVar[tuple[str, ...]] = ()

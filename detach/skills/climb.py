@@ -1,9 +1,10 @@
 """Climb: get onto an object and stand on it (the paper's "Climb").
 
 Target: `scene_K` (object K's climb point, `tarClimbPos` of its asset: the top surface above
-the bbox centre, carried into the world by the object's current pose) raised by
-`env.climb_pelvis_height` (a standing pelvis), or a fixed `tarpos_K`. Success (the paper:
-"the pelvis at or above the target elevation"): the distance
+the bbox centre, carried into the world by the object's current pose, its height that of the
+object's current top: `object_top_point`) raised by `env.climb_pelvis_height` (a standing
+pelvis), or a fixed `tarpos_K`. Success (the paper: "the pelvis at or above the target
+elevation"): the distance
 sqrt(dxy^2 + max(0, target_z - pelvis_z)^2) stays within `success_threshold` until the
 transition fires; being higher does not count against it.
 
@@ -24,7 +25,7 @@ from detach.skills.base import RewardTerm, Skill, Subtask
 from detach.skills.context import OracleCommand, SkillContext
 from detach.skills.kernels import approach
 from detach.skills.registry import register_skill
-from detach.torch_math import quat_rotate
+from detach.torch_math import quat_rotate, quat_to_matrix
 
 
 def climb_distance(root_pos: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -75,6 +76,22 @@ def object_point_world(ctx: SkillContext, local: torch.Tensor) -> torch.Tensor:
     return ctx.obj_pos + quat_rotate(ctx.obj_quat, local[ctx.obj.clamp(min=0)])
 
 
+def object_top_point(ctx: SkillContext, local: torch.Tensor) -> torch.Tensor:
+    """[N, 3] the climb points `local` [n_obj, 3] (on the top surface, object frame) of each
+    env's subtask object, on the top the object has now: XY carried by its pose, the height its
+    rotated bounding box's top plus the point's offset from the bbox top. For an upright object
+    this is `object_point_world`; a box knocked over would otherwise put its climb point on its
+    side at mid-height, where a policy standing beside the box met Climb's success rule."""
+    if local.shape[0] == 0:
+        return torch.zeros(ctx.num_envs, 3, device=local.device)
+    point = local[ctx.obj.clamp(min=0)]
+    rot = quat_to_matrix(ctx.obj_quat)
+    flat = torch.cat((point[:, :2], torch.zeros_like(point[:, 2:])), dim=-1)
+    xy = ctx.obj_pos[:, :2] + (rot[:, :2] @ flat[:, :, None]).squeeze(-1)
+    top = ctx.obj_pos[:, 2] + (rot[:, 2].abs() * ctx.obj_half).sum(-1) + point[:, 2] - ctx.obj_half[:, 2]
+    return torch.cat((xy, top[:, None]), dim=-1)
+
+
 @register_skill
 class Climb(Skill):
     name = "climb"
@@ -96,7 +113,7 @@ class Climb(Skill):
         return super().display_target(sub, scene)
 
     def target(self, ctx: SkillContext) -> torch.Tensor:
-        climb = object_point_world(ctx, self.local)
+        climb = object_top_point(ctx, self.local)
         climb[:, 2] += self.services.cfg.env.climb_pelvis_height
         return torch.where(ctx.has_fixed[:, None], ctx.fixed_target, climb)
 
