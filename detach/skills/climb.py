@@ -25,7 +25,7 @@ from detach.skills.base import RewardTerm, Skill, Subtask
 from detach.skills.context import OracleCommand, SkillContext
 from detach.skills.kernels import approach
 from detach.skills.registry import register_skill
-from detach.torch_math import quat_rotate, quat_to_matrix
+from detach.torch_math import box_corners_fast, quat_rotate
 
 
 def climb_distance(root_pos: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -85,11 +85,10 @@ def object_top_point(ctx: SkillContext, local: torch.Tensor) -> torch.Tensor:
     if local.shape[0] == 0:
         return torch.zeros(ctx.num_envs, 3, device=local.device)
     point = local[ctx.obj.clamp(min=0)]
-    rot = quat_to_matrix(ctx.obj_quat)
     flat = torch.cat((point[:, :2], torch.zeros_like(point[:, 2:])), dim=-1)
-    xy = ctx.obj_pos[:, :2] + (rot[:, :2] @ flat[:, :, None]).squeeze(-1)
-    top = ctx.obj_pos[:, 2] + (rot[:, 2].abs() * ctx.obj_half).sum(-1) + point[:, 2] - ctx.obj_half[:, 2]
-    return torch.cat((xy, top[:, None]), dim=-1)
+    xy = ctx.obj_pos[:, :2] + quat_rotate(ctx.obj_quat, flat)[:, :2]
+    bbox_top = box_corners_fast(ctx.obj_pos, ctx.obj_quat, ctx.obj_half)[..., 2].max(dim=-1).values
+    return torch.cat((xy, (bbox_top + point[:, 2] - ctx.obj_half[:, 2])[:, None]), dim=-1)
 
 
 @register_skill
