@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import threading
 import time
 from pathlib import Path
 
@@ -17,6 +18,7 @@ from detach.character.body import BODY_NAMES
 from detach.run_contract import SCENE_TOPIC, EpisodeFrame
 from detach.runs.mcap_log import RunLogWriter
 from server.log_tail import LogTail
+from server.replay_panel import NO_RUNS
 from tests.dashboard_fixtures import HeadlessClient, make_runs, start_dashboard
 
 
@@ -35,6 +37,8 @@ def _connect(url: str, dashboard, count: int) -> HeadlessClient:
     client = HeadlessClient(url)
     client.wait_for(lambda: len(dashboard.sessions) == count, what="the session")
     client.wait_for(lambda: len(client.elements) > 30, what="the panels")
+    # the panels are sent before the run list fills them: wait until it shows a run
+    client.wait_for(lambda: client.value("Run") != NO_RUNS, what="the run list")
     return client
 
 
@@ -86,6 +90,30 @@ def test_controls_refuse_values_outside_their_options(runs: Path) -> None:
     finally:
         client.close()
         server.stop()
+
+
+def test_controls_refuse_bad_values_when_the_run_list_arrives_late(
+        runs: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """CI once read the Run dropdown while it still showed its placeholder: the run list's
+    update reached the client after the first 30 panels and after the test's own changes.
+    Here it is held back until the client has changed a control."""
+    applied, sent = HeadlessClient._apply, HeadlessClient.set
+    changed = threading.Event()
+
+    def set_and_tell(self, label, value, **props):
+        sent(self, label, value, **props)
+        changed.set()
+
+    def late_run_list(self, m):
+        if m.get("type") == "GuiUpdateMessage" and str(m["updates"].get("value", "")).startswith("2023"):
+            self.lock.release()  # the client's other threads read on meanwhile
+            changed.wait(timeout=3.0)
+            self.lock.acquire()
+        applied(self, m)
+
+    monkeypatch.setattr(HeadlessClient, "_apply", late_run_list)
+    monkeypatch.setattr(HeadlessClient, "set", set_and_tell)
+    test_controls_refuse_values_outside_their_options(runs)
 
 
 def test_a_slow_browser_reaches_controls_built_after_the_first_panels(
