@@ -163,6 +163,12 @@ class RewardsCfg:
     are never rewarded, so their success measures skill generalisation."""
     terms: dict[str, float] = field(default_factory=dict)
     """Weights of named reward terms (`<skill>/<term>`); printed as a table at start-up."""
+    subtask_bonus: float = 0.0
+    """Reward paid once, at the control step a subtask's transition fires, for subtasks of the
+    paid skills. Each skill's terms pay at most 1 per step, and most near its own end: the
+    scripted oracle earns 1.0 per step holding Follow's end point and 0.23 in Carry's first
+    steps. Without a bonus, a policy can earn more by lingering just outside a subtask's
+    success distance than by moving on (see docs/PROTOCOL.md)."""
 
 
 @dataclass(frozen=True)
@@ -411,6 +417,7 @@ VALUE_RANGES: dict[str, Range] = {
     "env.trajectory.num_verts": Range(2), "env.trajectory.speed_min": AT_LEAST_0,
     "env.trajectory.speed_max": AT_LEAST_0, "env.trajectory.sharp_turn_prob": FRACTION,
     "env.follow_on_path_frac": FRACTION,
+    "rewards.subtask_bonus": AT_LEAST_0,
     "eval.trials": AT_LEAST_1, "eval.num_envs": ENV_COUNT, "eval.max_transition_steps": AT_LEAST_1,
     "eval.confidence": Range(0, 1, open_low=True, open_high=True),
     "train.max_iterations": AT_LEAST_1, "train.num_steps_per_env": AT_LEAST_1, "train.save_interval": AT_LEAST_1,

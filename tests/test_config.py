@@ -210,6 +210,8 @@ BROKEN: list[tuple[str, dict[str, str], list[str], str]] = [
      "model.history_frames: expected >= 0 (0 = every frame), found -1"),
     ("shared_trunk_mlp", {"t.yaml": GOOD_TASK}, ["model.shared_trunk=true"],
      "model.shared_trunk: override of unknown key (use +model.shared_trunk=... to add a new key)"),
+    ("negative_subtask_bonus", {"t.yaml": GOOD_TASK}, ["rewards.subtask_bonus=-1"],
+     "<command line>: rewards.subtask_bonus: expected a value >= 0, found -1.0"),
     ("override_no_equals", {"t.yaml": GOOD_TASK}, ["sim.num_envs"],
      "bad override 'sim.num_envs': expected key.path=value"),
     ("missing_task_file", {}, [], "t.yaml: task file not found"),

@@ -141,6 +141,9 @@ class LHEnv(VecEnv):
         rew, parts = self.rewards.compute(ctx)
         ended = self.terminations.compute(ctx)
         last_done = self.tracker.advance(ctx, self.steps)
+        bonus = self.rewards.completion_bonus(self.tracker.advanced | last_done, ctx.skill)
+        if bonus is not None:
+            rew, parts["bonus/subtask_done"] = rew + bonus, bonus
         terminated = torch.stack(list(ended.values())).any(dim=0)
         timeout = self.episode_length_buf >= self.max_episode_length
         time_outs = (timeout | self.terminations.last_subtask_ends(last_done)) & ~terminated

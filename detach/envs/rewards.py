@@ -9,6 +9,9 @@ velocity| over the 32 hinges (W, scaled by the character's `joint_power_weight`)
 (the puppet's grasp) is exempt, since it moves as the character's own body does: under the
 puppet's exploration noise a held box moved at a median 2.5 m/s and the penalty (1.1 per
 step) outweighed everything holding it earned, so policies learned to drop it.
+`rewards.subtask_bonus` is paid once when a subtask of a paid skill completes
+(`bonus/subtask_done`): finishing a subtask ends its high end-of-subtask reward and starts
+the next skill's low early reward, which otherwise pays a policy to linger.
 `RewardManager.table()` lists the active terms with their weights at start-up.
 `rewards.paid_skills` limits the paid terms to some skills (the zero-shot reading of the
 paper's protocol: climb and sit never rewarded).
@@ -57,12 +60,16 @@ class RewardManager:
         self.active = {n: w for n, w in self.weights.items()
                        if w != 0.0 and (paid is None or n.split("/")[0] in paid)}
         self.skill_of = {n: skill_index(n.split("/")[0]) for n in self.active}
+        self.bonus_skills = [skill_index(n) for n in skill_names() if paid is None or n in paid] \
+            if cfg.subtask_bonus > 0 else []
 
     def table(self) -> str:
         rows = [(n, f"{w:g}") for n, w in self.active.items()]
         rows += [("penalty/power", f"-{self.cfg.power_coeff:g} x W"),
                  ("penalty/dyn_obj_speed",
                   f"-{self.cfg.dyn_obj_speed_penalty_coeff:g} x (v - {self.cfg.dyn_obj_speed_threshold:g})+")]
+        if self.bonus_skills:
+            rows.append(("bonus/subtask_done", f"{self.cfg.subtask_bonus:g} once"))
         width = max(len(r[0]) for r in rows)
         lines = ["Active reward terms", f"  {'term':<{width}}  weight", f"  {'-' * width}  ------"]
         lines += [f"  {n:<{width}}  {w}" for n, w in rows]
@@ -87,3 +94,13 @@ class RewardManager:
         dyn = -self.cfg.dyn_obj_speed_penalty_coeff * (excess * free).sum(-1)
         parts["penalty/power"], parts["penalty/dyn_obj_speed"] = power, dyn
         return total + power + dyn, parts
+
+    def completion_bonus(self, completed: torch.Tensor, skill: torch.Tensor) -> torch.Tensor | None:
+        """[N] `subtask_bonus` where a subtask of a paid skill completed at this step (completed
+        [N] bool, skill [N]: the completed subtask's registry index); None with no bonus."""
+        if not self.bonus_skills:
+            return None
+        paid = torch.zeros_like(completed)
+        for i in self.bonus_skills:
+            paid |= skill == i
+        return (completed & paid).float() * self.cfg.subtask_bonus

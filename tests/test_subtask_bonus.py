@@ -1,0 +1,51 @@
+"""`rewards.subtask_bonus`: a reward paid once at the step a subtask of a paid skill completes.
+Without it, LH1 policies learned to stay just outside Follow's success distance (its end
+point pays 1 per step, Carry's first steps 0.23), so Follow's transition never fired."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+
+from detach.config import resolve
+from detach.envs.lh_env import make_env
+from detach.envs.oracle import Oracle
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _oracle_rewards(overrides: list[str], steps: int) -> tuple[list[float], list[int], list[float]]:
+    """Per step of one LH1 env driven by the oracle: reward, subtask, and the logged bonus."""
+    cfg = resolve(ROOT / "configs/tasks/lh1.yaml", "mlp", ["env.character=puppet", *overrides], seed=3)
+    env = make_env(cfg, num_envs=1, verbose=False)
+    oracle = Oracle(env)
+    rewards, subtasks, logged = [], [], []
+    for _ in range(steps):
+        _obs, rew, _dones, extras = env.step(oracle())
+        rewards.append(float(rew[0]))
+        subtasks.append(int(env.tracker.subtask[0]))
+        logged.append(float(extras["log"].get("Episode_Reward/bonus/subtask_done", torch.nan)))
+    return rewards, subtasks, logged
+
+
+def test_the_bonus_is_paid_once_when_a_paid_subtask_completes() -> None:
+    torch.set_num_threads(1)
+    steps = 300  # the oracle finishes LH1's Follow after ~240 steps
+    plain, subtasks, _ = _oracle_rewards([], steps)
+    paid, subtasks_paid, logged = _oracle_rewards(["rewards.subtask_bonus=20"], steps)
+    assert subtasks_paid == subtasks, "the bonus must not change what the env does"
+    moved = [t for t in range(1, steps) if subtasks[t] != subtasks[t - 1]]
+    assert len(moved) == 1 and subtasks[moved[0]] == 1, "Follow's transition fired once"
+    extra = [round(b - a, 4) for a, b in zip(plain, paid)]
+    assert extra[moved[0]] == 20.0
+    assert all(x == 0.0 for t, x in enumerate(extra) if t != moved[0])
+    assert logged[moved[0]] == 20.0 and logged[moved[0] - 1] == 0.0
+    # Follow is not among the paid skills: no bonus at its transition
+    unpaid, _, logged = _oracle_rewards(["rewards.subtask_bonus=20", "rewards.paid_skills=[carry]"], steps)
+    assert unpaid[moved[0]] < 5.0 and all(x == 0.0 for x in logged if x == x)
+
+
+def test_without_a_bonus_the_log_has_no_bonus_term() -> None:
+    _, _, logged = _oracle_rewards([], 3)
+    assert all(x != x for x in logged)  # NaN: the key is absent
