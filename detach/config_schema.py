@@ -166,8 +166,8 @@ class RewardsCfg:
     subtask_bonus: float = 0.0
     """Reward paid once, at the control step a subtask's transition fires, for subtasks of the
     paid skills. Each skill's terms pay at most 1 per step, and most near its own end: the
-    scripted oracle earns 1.0 per step holding Follow's end point and 0.23 in Carry's first
-    steps. Without a bonus, a policy can earn more by lingering just outside a subtask's
+    scripted oracle earns 1.0 per step holding Follow's end point and 0.15 in Carry's first
+    ten steps. Without a bonus, a policy can earn more by lingering just outside a subtask's
     success distance than by moving on (see docs/PROTOCOL.md)."""
 
 
