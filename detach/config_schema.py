@@ -168,7 +168,8 @@ class RewardsCfg:
     paid skills. Each skill's terms pay at most 1 per step, and most near its own end: the
     scripted oracle earns 1.0 per step holding Follow's end point and 0.15 in Carry's first
     ten steps. Without a bonus, a policy can earn more by lingering just outside a subtask's
-    success distance than by moving on (see docs/PROTOCOL.md)."""
+    success distance than by moving on. Off by default: 20 lowered LH1's Follow success
+    (docs/PROTOCOL.md)."""
 
 
 @dataclass(frozen=True)

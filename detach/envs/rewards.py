@@ -11,7 +11,8 @@ puppet's exploration noise a held box moved at a median 2.5 m/s and the penalty 
 step) outweighed everything holding it earned, so policies learned to drop it.
 `rewards.subtask_bonus` is paid once when a subtask of a paid skill completes
 (`bonus/subtask_done`): finishing a subtask ends its high end-of-subtask reward and starts
-the next skill's low early reward, which otherwise pays a policy to linger.
+the next skill's low early reward, which can pay a policy to linger (off by default:
+a bonus of 20 lowered LH1's Follow success, docs/PROTOCOL.md).
 `RewardManager.table()` lists the active terms with their weights at start-up.
 `rewards.paid_skills` limits the paid terms to some skills (the zero-shot reading of the
 paper's protocol: climb and sit never rewarded).
