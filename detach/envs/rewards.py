@@ -57,12 +57,11 @@ class RewardManager:
         self.cfg = cfg
         self.fns = {name: fn for name, (fn, _w) in terms.items()}
         self.weights = {name: weights.get(name, w) for name, (_fn, w) in terms.items()}
-        paid = None if cfg.paid_skills is None else {canonical_name(s) for s in cfg.paid_skills}
-        self.active = {n: w for n, w in self.weights.items()
-                       if w != 0.0 and (paid is None or n.split("/")[0] in paid)}
+        wanted = None if cfg.paid_skills is None else {canonical_name(s) for s in cfg.paid_skills}
+        paid = [s for s in skill_names() if wanted is None or s in wanted]
+        self.active = {n: w for n, w in self.weights.items() if w != 0.0 and n.split("/")[0] in paid}
         self.skill_of = {n: skill_index(n.split("/")[0]) for n in self.active}
-        self.bonus_skills = [skill_index(n) for n in skill_names() if paid is None or n in paid] \
-            if cfg.subtask_bonus > 0 else []
+        self.bonus_skills = [skill_index(s) for s in paid] if cfg.subtask_bonus > 0 else []
 
     def table(self) -> str:
         rows = [(n, f"{w:g}") for n, w in self.active.items()]
