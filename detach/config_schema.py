@@ -336,7 +336,8 @@ class TrainCfg:
     amp: AmpCfg = AmpCfg()
     stages: StagesCfg = StagesCfg()
     torch_threads: int = 0
-    """torch CPU threads; 0 keeps torch's default (one per core, or OMP_NUM_THREADS)."""
+    """torch CPU threads of training, evaluation and play; 0 keeps torch's default (one per core,
+    or OMP_NUM_THREADS). Set 1 when two runs share the cores."""
     logger: Literal["none", "tensorboard", "wandb"] = "none"
     """Where the metrics go besides log.mcap, through rsl-rl's own writers into the run folder:
     `tensorboard` (event files), `wandb` (Weights & Biases, the `[wandb]` extra; `WANDB_MODE=offline`

@@ -122,6 +122,22 @@ def test_eval_on_another_task_writes_its_own_file(tmp_path: Path) -> None:
     assert result.plan == ["sit"] and not run.eval_path.exists()
 
 
+def test_evaluation_uses_the_runs_torch_threads(tmp_path: Path) -> None:
+    # `detach-run eval` ran with torch's default threads whatever train.torch_threads said: two
+    # evaluations side by side on 2 cores then fought MuJoCo's threads and ran ~10x slower
+    import torch
+
+    before = torch.get_num_threads()
+    try:
+        assert cli.main([FOLLOW, "--model", "mlp", "--out", str(tmp_path), "--no-eval",
+                         "train.max_iterations=1", "train.torch_threads=1", *TINY]) == 0
+        torch.set_num_threads(2)  # what a fresh process on 2 cores has
+        assert cli.main(["eval", str(_only_run(tmp_path).path), "--trials", "2"]) == 0
+        assert torch.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(before)
+
+
 def test_a_smaller_evaluation_does_not_replace_a_larger_one_unless_asked(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     # a 4-trial check once silently replaced a committed 100-trial eval.json

@@ -27,7 +27,7 @@ class PolicyRollout:
         from detach.runs.policy import load_policy
         from detach.runs.session import eval_config
         from detach.train.checkpoints import CheckpointError
-        from detach.train.setup import prepare_assets, seed_everything
+        from detach.train.setup import apply_torch_threads, prepare_assets, seed_everything
 
         self.run = run
         self.cfg = eval_config(run.config(), task_path)
@@ -35,6 +35,7 @@ class PolicyRollout:
         if self.checkpoint is None:
             raise CheckpointError("no readable checkpoint to play", str(run.checkpoints))
         prepare_assets(self.cfg.task)
+        apply_torch_threads(self.cfg)
         seed_everything(self.cfg.seed + 1)
         self.env = make_env(self.cfg, num_envs=1, device=device, eval_mode=True)
         self.actor, _state = load_policy(self.cfg, self.env, self.checkpoint, device)

@@ -27,7 +27,7 @@ from detach.runs.policy import load_policy
 from detach.runs.provenance import write_provenance
 from detach.train.checkpoints import CheckpointError
 from detach.train.setup import (
-    build_runner, load_initial_weights, prepare_assets, seed_everything, train_cfg_dict,
+    apply_torch_threads, build_runner, load_initial_weights, prepare_assets, seed_everything, train_cfg_dict,
 )
 
 
@@ -121,6 +121,7 @@ def evaluate_run(run: RunFolder, task_path: Path | None, checkpoint: Path | None
         raise CheckpointError("no readable checkpoint to evaluate", str(run.checkpoints))
     trials = cfg.eval.trials if trials is None else trials
     prepare_assets(cfg.task)
+    apply_torch_threads(cfg)
     seed_everything(cfg.seed + 1)
     env = make_env(cfg, num_envs=min(cfg.eval.num_envs, trials), device=device, eval_mode=True)
     actor, state = load_policy(cfg, env, checkpoint, device)
