@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 import pytest
+import torch
 
 from detach import cli
 from detach.run_contract import EvalResult
@@ -124,9 +125,7 @@ def test_eval_on_another_task_writes_its_own_file(tmp_path: Path) -> None:
 
 def test_evaluation_uses_the_runs_torch_threads(tmp_path: Path) -> None:
     # `detach-run eval` ran with torch's default threads whatever train.torch_threads said: two
-    # evaluations side by side on 2 cores then fought MuJoCo's threads and ran ~10x slower
-    import torch
-
+    # evaluations side by side on 2 cores then fought MuJoCo's threads and ran 8x slower
     before = torch.get_num_threads()
     try:
         assert cli.main([FOLLOW, "--model", "mlp", "--out", str(tmp_path), "--no-eval",
