@@ -1,6 +1,6 @@
-"""Where does a policy go in LH1's Climb subtask? Every episode starts at Climb from the
-scripted oracle's recorded states (`env.subtask_start_prob=1`, 32 envs, mean actions; the envs
-that started at Carry are left out). Every 30 control steps, medians over the envs still in
+"""Where does a policy go in LH1's Climb subtask (or the single-skill climb task's)? In LH1 every
+episode starts at Climb from the scripted oracle's recorded states (`env.subtask_start_prob=1`,
+32 envs, mean actions; the envs that started at Carry are left out). Every 30 control steps, medians over the envs still in
 Climb: the pelvis's XY distance to the climb target and its height against the target's, the
 soles' height against the top surface's, and how far the climbed object has moved since the
 start; then the share of envs that reached Climb's success distance.
@@ -20,19 +20,20 @@ from detach.runs.policy import load_policy
 from detach.train.setup import seed_everything
 
 NUM_ENVS = 32
-CLIMB = 2
 FEET_IDS = [BODY_NAMES.index(b) for b in FEET]
 
 
 def main() -> None:
     cfg = RunFolder(Path(sys.argv[1])).config()
-    cfg = replace(cfg, env=replace(cfg.env, subtask_start_prob=1.0))
+    climb = list(cfg.task.plan).index("climb")
+    if climb > 0:
+        cfg = replace(cfg, env=replace(cfg.env, subtask_start_prob=1.0))
     seed_everything(1)
     env = make_env(cfg, num_envs=NUM_ENVS, device="cpu", verbose=False)
     actor, _ = load_policy(cfg, env, Path(sys.argv[2]))
     obs = env.get_observations()
     ctx = env.context()
-    climbing = ctx.subtask == CLIMB
+    climbing = ctx.subtask == climb
     print(f"{int(climbing.sum())} of {NUM_ENVS} envs start at Climb")
     box0 = ctx.obj_pos.clone()
     pelvis_height = cfg.env.climb_pelvis_height
@@ -42,7 +43,7 @@ def main() -> None:
             obs, _rew, dones, _extras = env.step(actor(obs))
             climbing &= ~dones.bool()
             ctx = env.context()
-            live = climbing & (ctx.subtask == CLIMB)
+            live = climbing & (ctx.subtask == climb)
             dxy = (ctx.state.root_pos[:, :2] - ctx.target[:, :2]).norm(dim=-1)
             dz = ctx.state.root_pos[:, 2] - ctx.target[:, 2]
             soles = ctx.state.body_pos[:, FEET_IDS, 2].mean(dim=-1) - FOOT_TO_SOLE
