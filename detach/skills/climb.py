@@ -50,7 +50,8 @@ FEET_KERNEL = 5.0
 REACH = 0.5
 """feet_height pays while the pelvis is within the object's XY half diagonal plus this (m). Beside
 a small top (LH1's 0.6 m box) the feet reach its height without standing on it, and a puppet
-learns exactly that (results/laptop/README.md, probe C7)."""
+learns that first: it climbs such a box only after about twice the iterations a wide platform
+takes (results/laptop/README.md, probe C7)."""
 _FEET = [BODY_NAMES.index(b) for b in FEET]
 
 
