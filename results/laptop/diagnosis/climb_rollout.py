@@ -1,9 +1,10 @@
-"""Where does a policy go in LH1's Climb subtask (or the single-skill climb task's)? In LH1 every
-episode starts at Climb from the scripted oracle's recorded states (`env.subtask_start_prob=1`,
-32 envs, mean actions; the envs that started at Carry are left out). Every 30 control steps, medians over the envs still in
-Climb: the pelvis's XY distance to the climb target and its height against the target's, the
-soles' height against the top surface's, and how far the climbed object has moved since the
-start; then the share of envs that reached Climb's success distance.
+"""Where does a policy go in LH1's Climb subtask (or the single-skill climb task's)? 32 envs,
+mean actions. In LH1 every episode starts at Climb from the scripted oracle's recorded states
+(`env.subtask_start_prob=1`; the envs that started at Carry are left out). Every 30 control
+steps, medians over the envs still in Climb: the pelvis's XY distance to the climb target and
+its height against the target's, the soles' height against the top surface's, and how far the
+climbed object has moved since the start; then the share of envs that reached Climb's success
+distance.
 
     python results/laptop/diagnosis/climb_rollout.py RUN_DIR CHECKPOINT.pt
 """
