@@ -14,7 +14,10 @@ Sections (each one line of the Markdown table and one entry of the JSON):
    and Follow success per iteration.
 
 Writes `<out>/gpu_check.json` and `<out>/gpu_check.md` (device name, versions, figures) and
-prints the Markdown. The first warp section includes compiling the kernels (reported apart:
+prints the Markdown; the JSON is rewritten after each section, so a run stopped early keeps what
+it measured. A section that fails is reported (its error in the JSON and the Markdown) and the
+next one runs; if capturing a CUDA graph fails, the step is measured again with
+`sim.cuda_graph=false` and the report says so. The first warp section includes compiling the kernels (reported apart:
 `compile_s`); with a warm kernel cache it takes seconds.
 """
 
@@ -26,6 +29,7 @@ import json
 import os
 import platform
 import time
+import traceback
 from pathlib import Path
 
 import mujoco
@@ -41,11 +45,16 @@ def _sync(device: torch.device) -> None:
         torch.cuda.synchronize(device)
 
 
+CUDA_GRAPH = {"on": True}
+"""Whether the warp sections capture CUDA graphs: off once a capture has failed."""
+
+
 def _cfg(task: str, model: str, overrides: list[str]):
     from detach.config import resolve
     from detach.train.checks import complete_run_config
 
-    return complete_run_config(resolve(TASKS / f"{task}.yaml", model, ["sim.backend=warp", *overrides]))
+    graph = f"sim.cuda_graph={'true' if CUDA_GRAPH['on'] else 'false'}"
+    return complete_run_config(resolve(TASKS / f"{task}.yaml", model, ["sim.backend=warp", graph, *overrides]))
 
 
 def raw_physics(ns: list[int], device: torch.device, seconds: float) -> list[dict]:
@@ -62,10 +71,21 @@ def raw_physics(ns: list[int], device: torch.device, seconds: float) -> list[dic
     rows = []
     for n in ns:
         t0 = time.perf_counter()
-        be = make_backend(cfg.sim, model, n, device)
         ctrl = torch.zeros(n, model.nu, device=device)
-        be.step(ctrl, sub)  # compile (first N) and capture the CUDA graph
-        _sync(device)
+        try:
+            be = make_backend(dataclasses.replace(cfg.sim, cuda_graph=CUDA_GRAPH["on"]), model, n, device)
+            be.step(ctrl, sub)  # compile (first N) and capture the CUDA graph
+            be.step(ctrl, sub)  # replay it once
+            _sync(device)
+        except Exception:
+            if not CUDA_GRAPH["on"] or device.type != "cuda":
+                raise
+            traceback.print_exc()
+            print("gpu_check: the CUDA graph failed; measuring with sim.cuda_graph=false from here", flush=True)
+            CUDA_GRAPH["on"] = False
+            be = make_backend(dataclasses.replace(cfg.sim, cuda_graph=False), model, n, device)
+            be.step(ctrl, sub)
+            _sync(device)
         compile_s = time.perf_counter() - t0
         warp_sps = _rate(lambda: be.step(ctrl, sub), n, device, seconds / 2)
         be = None  # free the worlds before the CPU run (the lambda above has run)
@@ -73,7 +93,8 @@ def raw_physics(ns: list[int], device: torch.device, seconds: float) -> list[dic
         cpu.forward()
         cpu_sps = _rate(lambda: cpu.step(nstep=sub), n, torch.device("cpu"), seconds / 2)
         rows.append({"n": n, "warp_steps_per_s": warp_sps, "cpu_steps_per_s": cpu_sps,
-                     "cpu_threads": cpu.nthread, "speedup": warp_sps / cpu_sps, "compile_s": compile_s})
+                     "cpu_threads": cpu.nthread, "speedup": warp_sps / cpu_sps, "compile_s": compile_s,
+                     "cuda_graph": CUDA_GRAPH["on"] and device.type == "cuda"})
         print(f"raw N={n}: warp {warp_sps:.0f}, mujoco.batch {cpu_sps:.0f} control steps/s", flush=True)
     return rows
 
@@ -172,7 +193,7 @@ def markdown(report: dict) -> str:
              f"{report['date']}, {report['versions']}, {os.cpu_count()} CPU cores, "
              f"{report['wall_s'] / 60:.1f} min in all.", "",
              "| measure | N | warp | mujoco.batch (all cores) | ratio |", "| --- | --- | --- | --- | --- |"]
-    for r in report["raw"]:
+    for r in report.get("raw", []):
         lines.append(f"| raw physics, LH3 humanoid, control steps/s | {r['n']} | {r['warp_steps_per_s']:.0f} | "
                      f"{r['cpu_steps_per_s']:.0f} ({r['cpu_threads']} threads) | {r['speedup']:.1f}x |")
     if report.get("env"):
@@ -189,9 +210,26 @@ def markdown(report: dict) -> str:
         for row in curve[:: max(len(curve) // 10, 1)] + ([curve[-1]] if len(curve) > 1 else []):
             fmt = lambda v: "" if v is None else f"{v:.3f}"  # noqa: E731
             lines.append(f"| {row['iteration']} | {row['minutes']:.1f} | {fmt(row['reward'])} | {fmt(row['follow'])} |")
-    if report["raw"]:
-        lines += ["", f"Kernel compile + first step: {report['raw'][0]['compile_s']:.0f} s."]
+    if report.get("raw"):
+        graph = "CUDA graph per control step" if report["raw"][-1]["cuda_graph"] else "no CUDA graph"
+        lines += ["", f"Kernel compile + first step: {report['raw'][0]['compile_s']:.0f} s; {graph}."]
+    for name, error in report.get("errors", {}).items():
+        lines += ["", f"Section {name} failed: {error}"]
     return "\n".join(lines) + "\n"
+
+
+def _section(report: dict, name: str, out: Path, measure) -> None:
+    """report[name] = measure(), or its error under report['errors']; then the JSON, so far."""
+    t0 = time.perf_counter()
+    print(f"gpu_check: {name} ...", flush=True)
+    try:
+        report[name] = measure()
+    except Exception as exc:  # one failed section must not lose the others' figures
+        traceback.print_exc()
+        report.setdefault("errors", {})[name] = f"{type(exc).__name__}: {exc}"[:2000]
+    print(f"gpu_check: {name} took {time.perf_counter() - t0:.0f} s", flush=True)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "gpu_check.json").write_text(json.dumps(report, indent=1))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -217,13 +255,17 @@ def main(argv: list[str] | None = None) -> int:
 
     versions = f"mujoco {mujoco.__version__}, warp {warp.config.version}, torch {torch.__version__}"
     report: dict = {"date": time.strftime("%Y-%m-%d %H:%M %Z"), "device": str(device),
-                    "device_name": device_name(device), "versions": versions,
-                    "raw": raw_physics(args.ns, device, args.seconds)}
-    report["env"] = env_rate(args.env_n, device, args.seconds)
-    report["ppo"] = [ppo_iteration(m, args.ppo_n, args.ppo_steps, device) for m in args.models]
+                    "device_name": device_name(device), "versions": versions}
+    _section(report, "raw", args.out, lambda: raw_physics(args.ns, device, args.seconds))
+    _section(report, "env", args.out, lambda: env_rate(args.env_n, device, args.seconds))
+    report["ppo"] = []
+    for model in args.models:
+        _section(report, f"ppo_{model}", args.out, lambda: ppo_iteration(model, args.ppo_n, args.ppo_steps, device))
+        if f"ppo_{model}" in report:
+            report["ppo"].append(report.pop(f"ppo_{model}"))
     rest = args.budget - (time.perf_counter() - t0)
     if rest > 0:
-        report["learning"] = learning_curve(args.ppo_n, args.ppo_steps, device, rest)
+        _section(report, "learning", args.out, lambda: learning_curve(args.ppo_n, args.ppo_steps, device, rest))
     report["wall_s"] = time.perf_counter() - t0
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "gpu_check.json").write_text(json.dumps(report, indent=1))

@@ -90,6 +90,9 @@ class SimCfg:
     njmax: int = 256
     """warp: constraint rows allocated per world (contacts x 4 pyramid edges, joint limits,
     the grasp weld); a world past it raises an error naming this key."""
+    cuda_graph: bool = True
+    """warp on a CUDA device: replay each control step's launches as one CUDA graph (false:
+    launch them one by one, slower; for debugging a capture)."""
 
 
 @dataclass(frozen=True)

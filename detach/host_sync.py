@@ -47,3 +47,12 @@ def deferred_reads() -> Iterator[None]:
         yield
     finally:
         _DEFERRED.reset(token)
+
+
+def to_device_async(t: torch.Tensor, device: torch.device) -> torch.Tensor:
+    """t (a host tensor) on device without waiting: on CUDA through pinned memory and a
+    non-blocking copy, since a copy from pageable memory waits for the device's queue (torch's
+    caching host allocator keeps the pinned buffer until the copy is done); as is elsewhere."""
+    if device.type != "cuda" or t.device.type != "cpu":
+        return t.to(device)
+    return t.pin_memory().to(device, non_blocking=True)

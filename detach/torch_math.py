@@ -6,9 +6,17 @@ so that observations do not depend on where the character looks in the world.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
+
+
+@functools.cache
+def index_on(ids: tuple[int, ...], device: torch.device) -> torch.Tensor:
+    """ids as a long tensor on device, made once per device: a Python list as an index is
+    copied to the device on every use, and on an accelerator that copy waits for its queue."""
+    return torch.tensor(ids, dtype=torch.long, device=device)
 
 
 def quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:

@@ -1,7 +1,10 @@
 """The environment step reads the device on the host once, to learn which episodes ended (as
 IsaacLab's and mjlab's envs do), so that on a GPU it queues its kernels without waiting for
-them. On a CPU, `deferred_reads` makes the env take the accelerator's path, and a
-`TorchDispatchMode` lists the aten ops that read a tensor's value on the host."""
+them. On a CPU, `deferred_reads` makes the env take the accelerator's path, a
+`TorchDispatchMode` lists the aten ops that read a tensor's value on the host, and a
+`TorchFunctionMode` the calls that copy host data to the device on an accelerator (a copy
+from pageable host memory waits for the stream too: on an H200, before these were counted,
+a humanoid LH1 step made ~19 such waits, measured with `torch.cuda.set_sync_debug_mode`)."""
 
 from __future__ import annotations
 
@@ -10,6 +13,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from torch.overrides import TorchFunctionMode
 from torch.utils._python_dispatch import TorchDispatchMode
 
 from detach.config import resolve
@@ -37,8 +41,43 @@ class HostReads(TorchDispatchMode):
         bool_index = name in INDEXING and len(args) > 1 and any(
             isinstance(t, torch.Tensor) and t.dtype == torch.bool for t in args[1])
         if name in READS or bool_index:
-            ours = [f for f in traceback.extract_stack() if "/detach/" in f.filename]
-            self.sites.append((ours[-1].filename.split("/detach/")[-1], ours[-1].name) if ours else ("?", "?"))
+            self.sites.append(_detach_site())
+        return func(*args, **(kwargs or {}))
+
+
+def _detach_site() -> tuple[str, str]:
+    ours = [f for f in traceback.extract_stack() if "/detach/" in f.filename]
+    return (ours[-1].filename.split("/detach/")[-1], ours[-1].name) if ours else ("?", "?")
+
+
+def _has_list(index) -> bool:
+    parts = index if isinstance(index, tuple) else (index,)
+    return any(isinstance(p, list) for p in parts)
+
+
+def _has_tensor(index) -> bool:
+    parts = index if isinstance(index, tuple) else (index,)
+    return any(isinstance(p, torch.Tensor) for p in parts)
+
+
+class HostCopies(TorchFunctionMode):
+    """Records (file, function) of each call that, on an accelerator, copies host data to the
+    device: a tensor made from Python or NumPy data, an index given as a Python list, or a
+    Python number written through a tensor index (`t[ids] = 0`: index_put_ takes the number
+    as a host tensor; `index_fill_` takes it as a kernel argument)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.sites: list[tuple[str, str]] = []
+
+    def __torch_function__(self, func, types, args=(), kwargs=None):
+        name = getattr(func, "__name__", "")
+        copies = ((name in ("tensor", "as_tensor") and args and not isinstance(args[0], torch.Tensor))
+                  or (name in ("__getitem__", "__setitem__") and _has_list(args[1]))
+                  or (name == "__setitem__" and _has_tensor(args[1]) and isinstance(args[2], (bool, int, float))))
+        site = _detach_site() if copies else None
+        if copies and site != ("torch_math.py", "index_on"):  # made once per device, then cached
+            self.sites.append(site)
         return func(*args, **(kwargs or {}))
 
 
@@ -56,16 +95,17 @@ def test_may_any_reads_on_the_cpu_and_not_when_deferred() -> None:
 
 
 def _count_reads(env, policy, steps: int) -> tuple[set[tuple[str, str]], list[int], int]:
-    """Step env under `deferred_reads`: (sites of every host read, reads per step, episodes ended)."""
+    """Step env under `deferred_reads`: (sites of every host read or host-to-device copy, their
+    count per step, episodes ended)."""
     sites: set[tuple[str, str]] = set()
     per_step, ended = [], 0
     for _ in range(steps):
         actions = policy()
-        reads = HostReads()
-        with deferred_reads(), reads:
+        reads, copies = HostReads(), HostCopies()
+        with deferred_reads(), reads, copies:
             _obs, _rew, dones, _extras = env.step(actions)
-        sites.update(reads.sites)
-        per_step.append(len(reads.sites))
+        sites.update(reads.sites + copies.sites)
+        per_step.append(len(reads.sites) + len(copies.sites))
         ended += int(dones.sum())
     return sites, per_step, ended
 

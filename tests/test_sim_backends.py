@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 import torch
 
-from detach.config import resolve
+from detach.config import ConfigError, resolve
 from detach.character import make_character
 from detach.sim import SimConfigError, check_sim, make_backend, sim_settings
 from scene_builder.scene import compile_scene
@@ -177,6 +177,21 @@ def test_sim_settings_and_unsupported_combinations():
     assert err.value.key == "sleep" and "\n" not in str(err.value)
     with pytest.raises(SimConfigError, match="cpu or cuda"):
         check_sim(warp, "mps")
+
+
+def test_cuda_graph_setting_reaches_the_warp_backend(monkeypatch):
+    """`sim.cuda_graph` is a strict bool and the factory hands it to the warp backend (the
+    capture itself needs a CUDA device; `benchmarks/gpu_check.py` falls back to false)."""
+    import detach.sim.warp_backend as wb
+
+    assert resolve(TASKS / "follow.yaml", "mlp", []).sim.cuda_graph is True
+    sim = resolve(TASKS / "follow.yaml", "mlp", ["sim.backend=warp", "sim.cuda_graph=false"]).sim
+    with pytest.raises(ConfigError, match="sim.cuda_graph: expected true or false"):
+        resolve(TASKS / "follow.yaml", "mlp", ["sim.cuda_graph=maybe"])
+    seen = {}
+    monkeypatch.setattr(wb, "WarpBackend", lambda *a, **kw: seen.update(kw) or "backend")
+    assert make_backend(sim, None, 2, torch.device("cpu")) == "backend"
+    assert seen["cuda_graph"] is False
 
 
 @needs_warp

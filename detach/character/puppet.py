@@ -172,7 +172,7 @@ class Puppet(Character):
         self.movable_index = torch.tensor([m.index for m in movable], dtype=torch.long, device=device)
 
     def reset(self, ids: torch.Tensor) -> None:
-        self.grasp_obj[ids] = -1
+        self.grasp_obj.index_fill_(0, ids, -1)  # `[ids] = -1` would copy the -1 to the device
 
     def held_object(self) -> torch.Tensor:
         return self.grasp_obj

@@ -234,7 +234,7 @@ class LHEnv(VecEnv):
         """New episodes in envs ids; selections within them are masks (no host read)."""
         qpos, qvel, root_xy = self.resets.sample(ids)
         self.tracker.draw_objects(ids)
-        self.started_mid_task[ids] = False
+        self.started_mid_task.index_fill_(0, ids, False)  # not `[ids] = False`: no host-to-device copy
         holds = []  # (slot [n], -1 where none; pelvis pos, quat; object pos, quat)
         if self.mid_task_skill is not None:
             mid = self.resets.mid_task(ids, self.tracker.objects[ids, 0], self.mid_task_skill, self.mid_task_target,
@@ -251,8 +251,8 @@ class LHEnv(VecEnv):
             holds.append((torch.where(rows, st.held[pick], -1), st.root_pos[pick], st.root_quat[pick],
                           st.held_pos[pick], st.held_quat[pick]))
         self.backend.reset(ids, qpos, qvel)
-        self.episode_length_buf[ids] = 0
-        self.steps[ids] = 0
+        self.episode_length_buf.index_fill_(0, ids, 0)
+        self.steps.index_fill_(0, ids, 0)
         self.character.reset(ids)
         for slot, *pose in holds:
             if self.character.can_hold and may_any(slot >= 0):

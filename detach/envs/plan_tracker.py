@@ -70,7 +70,8 @@ class PlanTracker:
             half = self.index.obj_half[oc]
         else:
             opos = olin = half = torch.zeros(n, 3, device=dev)
-            oquat = torch.tensor([1.0, 0, 0, 0], device=dev).expand(n, 4)
+            oquat = torch.zeros(n, 4, device=dev)
+            oquat[:, 0] = 1.0
         dt = self.services.dt
         now_and_next = self.services.trajectory.reference(steps, self._now_and_next)  # one sample, not two
         ref = now_and_next[:, 0]
@@ -144,13 +145,10 @@ class PlanTracker:
     def reset(self, ids: torch.Tensor, steps: torch.Tensor, root_xy: torch.Tensor) -> None:
         """New episodes in envs ids (objects drawn with `draw_objects`) start their first
         subtask (steps [N], root_xy [N, 2]: every env's)."""
-        self.subtask[ids] = 0
-        self.hold[ids] = 0
-        self.done[ids] = False
-        self.start_step[ids] = -1
-        self.end_step[ids] = -1
-        for v in self.stats.values():
-            v[ids] = 0
+        # index_fill_ takes the value as a kernel argument; `t[ids] = 0` copies it to the device
+        for t, value in ((self.subtask, 0), (self.hold, 0), (self.done, False), (self.start_step, -1),
+                         (self.end_step, -1), *((v, 0) for v in self.stats.values())):
+            t.index_fill_(0, ids, value)
         every = torch.ones_like(ids, dtype=torch.bool)
         self.start(rows_at(len(self.subtask), ids, every, False), steps, root_xy)
 

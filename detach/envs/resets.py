@@ -29,6 +29,7 @@ import torch
 from detach.character import Character
 from detach.character.body import NUM_DOF, START_HEIGHT, dof_ranges
 from detach.config_schema import RunConfig
+from detach.host_sync import to_device_async
 from detach.skills import MidTaskStart, Skill
 from detach.torch_math import quat_conj, quat_from_yaw, quat_mul, yaw_of
 from scene_builder.scene import SceneInfo
@@ -49,6 +50,16 @@ class ResetSampler:
         """Resting bbox centre of each object (its position at reset), indexed by object."""
         self.rest_z = torch.cat((self.obj_rest[:, 2], torch.zeros(1, device=device)))
         """Resting height of each object, indexed by object; [-1] (no object) is 0."""
+        # Constants of every reset, on the device once: made from host data inside a reset,
+        # each would be a host-to-device copy, which waits for the device's queue.
+        self.upright = torch.tensor([1.0, 0.0, 0.0, 0.0], device=device)
+        self.dof_qpos_adr = torch.as_tensor(scene.dof_qpos_adr, dtype=torch.long, device=device)
+        self.dof_qvel_adr = torch.as_tensor(scene.dof_qvel_adr, dtype=torch.long, device=device)
+        self.dof_range = torch.as_tensor(dof_ranges(), dtype=torch.float32, device=device)
+        self.free_rest = [(o.qpos_adr, torch.tensor([*o.pos, math.cos(o.z_rot / 2), 0.0, 0.0, math.sin(o.z_rot / 2)],
+                                                    dtype=torch.float32, device=device))
+                          for o in scene.objects if not o.static]
+        """(qpos address, resting position and quaternion [7]) of each free object."""
 
     def _rand(self, *shape: int) -> torch.Tensor:
         return torch.rand(*shape, generator=self.gen, device=self.gen.device).to(self.device)
@@ -69,7 +80,7 @@ class ResetSampler:
                                                                                            device=self.device)
         xy = self.init_xy.expand(n, 2).clone()
         height = torch.full((n,), START_HEIGHT, device=self.device)
-        tilt = torch.tensor([1.0, 0.0, 0.0, 0.0], device=self.device).expand(n, 4).clone()
+        tilt = self.upright.expand(n, 4).clone()
         dof = torch.zeros(n, NUM_DOF, device=self.device)
         dof_vel = torch.zeros(n, NUM_DOF, device=self.device)
         lin = torch.zeros(n, 3, device=self.device)
@@ -78,30 +89,27 @@ class ResetSampler:
         if self.cfg.env.init != "default":  # drawn for all n starts, kept where ref: no host read of ref
             r1 = ref[:, None]
             if self.reference_sampler is not None:
-                r = self.reference_sampler(n, self.gen)
-                q = r["root_quat"].to(self.device)
+                # the clips live on the host (detach.train.setup): copied without waiting
+                r = {key: to_device_async(v, self.device) for key, v in self.reference_sampler(n, self.gen).items()}
+                q = r["root_quat"]
                 tilt = torch.where(r1, quat_mul(quat_conj(quat_from_yaw(yaw_of(q))), q), tilt)
-                height = torch.where(ref, r["root_height"].to(self.device), height)
-                dof = torch.where(r1, r["dof_pos"].to(self.device), dof)
-                dof_vel, lin, ang = (torch.where(r1, r[key].to(self.device), dst) if key in r else dst
+                height = torch.where(ref, r["root_height"], height)
+                dof = torch.where(r1, r["dof_pos"], dof)
+                dof_vel, lin, ang = (torch.where(r1, r[key], dst) if key in r else dst
                                      for key, dst in (("dof_vel", dof_vel), ("root_lin_vel", lin),
                                                       ("root_ang_vel", ang)))
             else:
                 noise = torch.randn(n, NUM_DOF, generator=self.gen, device=self.gen.device).to(self.device) * 0.05
-                rng = torch.as_tensor(dof_ranges(), dtype=torch.float32, device=self.device)
+                rng = self.dof_range
                 dof = torch.where(r1, torch.maximum(torch.minimum(noise, rng[:, 1]), rng[:, 0]), dof)
         qpos = self.qpos0.expand(n, -1).clone()
         qvel = torch.zeros(n, self.nv, device=self.device)
         self.character.write_root(qpos, qvel, self.scene.root_qpos_adr, self.scene.root_qvel_adr,
                                   xy, height, yaw, tilt, lin, ang)
-        qpos[:, torch.as_tensor(self.scene.dof_qpos_adr, device=self.device)] = dof
-        qvel[:, torch.as_tensor(self.scene.dof_qvel_adr, device=self.device)] = dof_vel
-        for o in self.scene.objects:
-            if o.static:
-                continue
-            qpos[:, o.qpos_adr:o.qpos_adr + 3] = torch.as_tensor(o.pos, dtype=torch.float32, device=self.device)
-            qpos[:, o.qpos_adr + 3:o.qpos_adr + 7] = torch.tensor(
-                [math.cos(o.z_rot / 2), 0.0, 0.0, math.sin(o.z_rot / 2)], device=self.device)
+        qpos[:, self.dof_qpos_adr] = dof
+        qvel[:, self.dof_qvel_adr] = dof_vel
+        for adr, rest in self.free_rest:
+            qpos[:, adr:adr + 7] = rest
         return qpos, qvel, xy
 
     def mid_task(self, ids: torch.Tensor, objects: torch.Tensor, skill: Skill, target: torch.Tensor,
@@ -120,11 +128,10 @@ class ResetSampler:
             return None
         q, v = qpos.clone(), qvel.clone()
         zeros = torch.zeros(n, 3, device=self.device)
-        upright = torch.tensor([1.0, 0.0, 0.0, 0.0], device=self.device).expand(n, 4)
         self.character.write_root(q, v, self.scene.root_qpos_adr, self.scene.root_qvel_adr, start.root_xy,
-                                  start.height, start.yaw, upright, zeros, zeros)
-        q[:, torch.as_tensor(self.scene.dof_qpos_adr, device=self.device)] = start.hinges
-        v[:, torch.as_tensor(self.scene.dof_qvel_adr, device=self.device)] = 0.0
+                                  start.height, start.yaw, self.upright.expand(n, 4), zeros, zeros)
+        q[:, self.dof_qpos_adr] = start.hinges
+        v.index_fill_(1, self.dof_qvel_adr, 0.0)
         for i in self.scene.dynamic:
             o = self.scene.objects[i]
             sel = (objects == i)[:, None]

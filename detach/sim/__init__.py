@@ -51,7 +51,7 @@ def _mujoco_batch(cfg: SimCfg, model: mujoco.MjModel, num_envs: int, device: tor
 def _warp(cfg: SimCfg, model: mujoco.MjModel, num_envs: int, device: torch.device) -> PhysicsBackend:
     from detach.sim.warp_backend import WarpBackend
 
-    return WarpBackend(model, num_envs, device, nconmax=cfg.nconmax, njmax=cfg.njmax)
+    return WarpBackend(model, num_envs, device, nconmax=cfg.nconmax, njmax=cfg.njmax, cuda_graph=cfg.cuda_graph)
 
 
 def _check_warp(cfg: SimCfg, device: str) -> list[tuple[str, str]]:

@@ -210,7 +210,7 @@ class WarpBackend(PhysicsBackend):
     def reset(self, ids: torch.Tensor, qpos: torch.Tensor, qvel: torch.Tensor) -> None:
         ids = ids.to(self.device, torch.long)
         self._mask.zero_()
-        self._mask[ids] = True
+        self._mask.index_fill_(0, ids, True)  # `[ids] = True` would copy the True to the device
         mask = self._mask
         self._run(lambda: self.mjw.reset_data(self.m, self.d, reset=self._mask_wp))
         self._t["qpos"][ids] = qpos.to(self.device, torch.float32)

@@ -19,7 +19,7 @@ from detach.skills.context import OracleCommand, SkillContext
 from detach.skills.kernels import NEAR, approach, approach_velocity
 from detach.skills.registry import register_skill
 from detach.skills.scripting import hinge_index
-from detach.torch_math import point_box_distance, quat_from_yaw, quat_rotate, wrap_angle
+from detach.torch_math import index_on, point_box_distance, quat_from_yaw, quat_rotate, wrap_angle
 
 GRASP_LIFT = 0.1
 """A box counts as grasped once lifted this far (m) above its resting height."""
@@ -62,14 +62,14 @@ def walk_to_box(ctx: SkillContext) -> torch.Tensor:
     return torch.where(box_at_destination(ctx) | box_lifted(ctx), torch.ones_like(r), r)
 
 
-HAND_IDS = [BODY_NAMES.index(h) for h in HANDS]
+HAND_IDS = tuple(BODY_NAMES.index(h) for h in HANDS)
 
 
 def hands_on_box(ctx: SkillContext) -> torch.Tensor:
     """exp(-20 d^2) of the hands' mean distance d to the box's surface; 1 while the box is
     lifted. Ours (TokenHSI's humanoid needs no such term: its hands close on the box by
     contact); it makes the grasp, which needs both hands on the box, findable by exploration."""
-    hands = ctx.state.body_pos[:, HAND_IDS]
+    hands = ctx.state.body_pos[:, index_on(HAND_IDS, ctx.state.body_pos.device)]
     d = point_box_distance(hands, ctx.obj_pos[:, None], ctx.obj_quat[:, None], ctx.obj_half[:, None]).mean(-1)
     return torch.where(box_lifted(ctx), torch.ones_like(d), torch.exp(-20.0 * d * d))
 

@@ -25,7 +25,7 @@ from detach.skills.base import RewardTerm, Skill, Subtask
 from detach.skills.context import OracleCommand, SkillContext
 from detach.skills.kernels import approach
 from detach.skills.registry import register_skill
-from detach.torch_math import box_corners_fast, quat_rotate
+from detach.torch_math import box_corners_fast, index_on, quat_rotate
 
 
 def climb_distance(root_pos: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -52,12 +52,12 @@ REACH = 0.5
 a small top (LH1's 0.6 m box) the feet reach its height without standing on it, and a puppet
 learns that first: it climbs such a box only after about twice the iterations a wide platform
 takes (results/laptop/README.md, probe C7)."""
-_FEET = [BODY_NAMES.index(b) for b in FEET]
+_FEET = tuple(BODY_NAMES.index(b) for b in FEET)
 
 
 def feet_height(ctx: SkillContext) -> torch.Tensor:
     """The feet at the top surface's height, paid within reach of the object (0 farther)."""
-    soles = ctx.state.body_pos[:, _FEET, 2].mean(dim=-1) - FOOT_TO_SOLE
+    soles = ctx.state.body_pos[:, index_on(_FEET, ctx.state.body_pos.device), 2].mean(dim=-1) - FOOT_TO_SOLE
     top = ctx.target[:, 2] - ctx.cfg.env.climb_pelvis_height
     r = torch.exp(-FEET_KERNEL * (soles - top) ** 2)
     dxy = (ctx.state.root_pos[:, :2] - ctx.target[:, :2]).norm(dim=-1)
