@@ -133,8 +133,9 @@ class EnvCfg:
     mid_task_init_prob: float = 0.0
     """Training only: the share of episodes that start from the middle of their first
     subtask's task where its skill offers such states (Carry: at the box with the hands on its
-    lid, or the box carried part of the way; TokenHSI's initialisation from its box clips).
-    Needs a character that can start holding an object (the puppet)."""
+    lid, or the box carried part of the way; TokenHSI's initialisation from its box clips;
+    Climb: standing beside the object, facing it). Needs a character that can start holding
+    an object (the puppet)."""
     subtask_start_prob: float = 0.0
     """Training only: the share of episodes of a plan of two or more subtasks that start at a
     later subtask (uniform over those the scripted oracle reached), from the state the oracle

@@ -1,6 +1,7 @@
 """`env.mid_task_init_prob`: Carry episodes that start with the box carried part of the way
-(TokenHSI's hybrid initialisation from box clips). Without them a Carry policy that never
-grasps never learns what holding and carrying pay (results/laptop/README.md, "Carry")."""
+(TokenHSI's hybrid initialisation from box clips), Climb episodes that start beside the
+object. Without them a Carry policy that never grasps never learns what holding and carrying
+pay (results/laptop/README.md, "Carry")."""
 
 from __future__ import annotations
 
@@ -235,3 +236,32 @@ def test_a_grasp_is_taken_only_where_the_skill_holds_objects() -> None:
     assert not bool(now[refuse].any())                   # refused, and held boxes let go
     assert bool(now[reachable & ~refuse].all())          # taken where the skill holds
     assert torch.equal(now[held & ~refuse], held[held & ~refuse])
+
+
+def test_climb_mid_task_starts_stand_beside_the_object_facing_it() -> None:
+    """Climb's mid-task starts (where LH1's Climb begins, beside the box Carry put down): every
+    start 0.2-1.0 m beyond the box's half diagonal, on every side, facing it within 90 degrees,
+    the free box where it rests; they step without falling through anything."""
+    from detach.skills.climb import NEAR_RANGE
+
+    box = ['scene[0].category=Box', 'scene[0].model_id=box_060x060x070', 'scene[0].size=[0.6,0.6,0.7]',
+           'scene[0].pos3d=[2.5,0.0,0.35]', 'scene[0].static=false', 'scene[0].mass=5.0']
+    cfg = resolve(ROOT / "configs/tasks/climb.yaml", "mlp",
+                  ["env.character=puppet", "env.mid_task_init_prob=1.0", *box])
+    env = make_env(cfg, num_envs=24, verbose=False)
+    st, centre = env.state, torch.tensor([2.5, 0.0])
+    away = st.root_pos[:, :2] - centre
+    dist = away.norm(dim=-1)
+    diagonal = float(torch.tensor([0.3, 0.3]).norm())
+    assert bool(env.started_mid_task.all())
+    assert bool((dist >= diagonal + NEAR_RANGE[0] - 1e-3).all())
+    assert bool((dist <= diagonal + NEAR_RANGE[1] + 1e-3).all())
+    sides = torch.atan2(away[:, 1], away[:, 0])
+    assert {int(q) for q in ((sides + torch.pi) // (torch.pi / 2)).clamp(max=3).tolist()} == {0, 1, 2, 3}
+    facing = torch.stack((yaw_of(st.root_quat).cos(), yaw_of(st.root_quat).sin()), -1)
+    assert bool(((facing * -away / dist[:, None]).sum(-1) >= -1e-3).all())
+    assert torch.allclose(st.obj_pos[:, 0], torch.tensor([2.5, 0.0, 0.35]).expand(24, 3), atol=1e-3)
+    assert not bool((env.character.held_object() >= 0).any())
+    for _ in range(30):
+        _obs, rew, _dones, _ = env.step(torch.zeros(24, env.num_actions))
+    assert bool(torch.isfinite(rew).all()) and float(env.state.root_pos[:, 2].min()) > 0.5

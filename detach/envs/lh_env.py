@@ -14,6 +14,8 @@ What an evaluator reads: `extras["episode_progress"]` at every step where some e
 
 from __future__ import annotations
 
+import math
+
 import time
 from dataclasses import dataclass, replace
 
@@ -101,8 +103,9 @@ class LHEnv(VecEnv):
         self.started_mid_task = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
         """Episodes that started mid-task or at a later subtask: their success is not the task's,
         so not logged."""
+        fixed = self.plan[0].fixed_target
         self.mid_task_target = None if self.mid_task_skill is None else torch.tensor(
-            self.plan[0].fixed_target, dtype=torch.float32, device=self.device)
+            fixed if fixed is not None else [math.nan] * 3, dtype=torch.float32, device=self.device)
         self.subtask_starts = self._record_subtask_starts(ec.subtask_start_prob, assets, assets_root, verbose)
         self.rewards = RewardManager(cfg.rewards)
         self.terminations = Terminations(ec, self.tracker.skills)
@@ -189,7 +192,8 @@ class LHEnv(VecEnv):
                              f"'{self.character.name}' cannot; use env.character=puppet or mid_task_init_prob 0")
         first = self.plan[0]
         skill = next(s for s in self.tracker.skills.values() if s.name == first.skill)
-        return skill if first.fixed_target is not None and (first.obj >= 0 or first.choices) else None
+        has_target = first.fixed_target is not None or not skill.mid_task_reads_target
+        return skill if has_target and (first.obj >= 0 or first.choices) else None
 
     def _record_subtask_starts(self, prob: float, assets, assets_root, verbose: bool) -> SubtaskStarts | None:
         if prob <= 0 or self.eval_mode:

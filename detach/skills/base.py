@@ -112,6 +112,10 @@ class Skill:
     """The character may grasp objects during its subtasks. Under any other skill a grasp
     request is refused and a held object let go: a Climb policy that could lift the box it
     is to climb carried it away instead (the climb point moves with the box)."""
+    mid_task_reads_target: ClassVar[bool] = True
+    """`mid_task_start` reads the subtask's fixed target (Carry's destination); a skill whose
+    starts need only the object's place (Climb) has mid-task starts with a target drawn from
+    the object too."""
     stats: ClassVar[dict[str, torch.dtype]] = {}
     """Per-subtask statistics [N, S] it accumulates, by name and dtype (zeroed at reset)."""
     termination_names: ClassVar[tuple[str, ...]] = ()
@@ -182,7 +186,8 @@ class Skill:
                        gen: torch.Generator) -> MidTaskStart | None:
         """A start state from the middle of this skill's task for n episodes whose first
         subtask is this skill's: obj_rest [n, 3] the object's resting bbox centre, obj_half
-        [n, 3] its half sizes, target [n, 3] the subtask's fixed target. None (the default):
+        [n, 3] its half sizes, target [n, 3] the subtask's fixed target (NaN where it has none
+        and `mid_task_reads_target` is False). None (the default):
         the skill has no such states, and its episodes start as configured (`env.init`)."""
         return None
 

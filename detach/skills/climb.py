@@ -17,15 +17,17 @@ exp(-5 d^2) from 0.01 to 0.04), and a policy learns to come near and stay.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 
-from detach.character.body import BODY_NAMES, FEET, FLOOR_TO_SOLE, FOOT_TO_SOLE, START_HEIGHT
-from detach.skills.base import RewardTerm, Skill, Subtask
+from detach.character.body import BODY_NAMES, FEET, FLOOR_TO_SOLE, FOOT_TO_SOLE, NUM_DOF, START_HEIGHT
+from detach.skills.base import MidTaskStart, RewardTerm, Skill, Subtask
 from detach.skills.context import OracleCommand, SkillContext
 from detach.skills.kernels import approach
 from detach.skills.registry import register_skill
-from detach.torch_math import box_corners_fast, index_on, quat_rotate
+from detach.torch_math import box_corners_fast, index_on, quat_rotate, wrap_angle
 
 
 def climb_distance(root_pos: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -94,6 +96,12 @@ def object_top_point(ctx: SkillContext, local: torch.Tensor) -> torch.Tensor:
     return torch.cat((xy, (bbox_top + point[:, 2] - ctx.obj_half[:, 2])[:, None]), dim=-1)
 
 
+NEAR_RANGE = (0.2, 1.0)
+"""A mid-task start stands this far (m) beyond the object's XY half diagonal from its centre."""
+NEAR_YAW_NOISE = math.pi / 2
+"""...facing the object's centre give or take this (rad)."""
+
+
 @register_skill
 class Climb(Skill):
     name = "climb"
@@ -121,6 +129,28 @@ class Climb(Skill):
 
     def distance(self, ctx: SkillContext) -> torch.Tensor:
         return climb_distance(ctx.state.root_pos, ctx.target)
+
+    mid_task_reads_target = False
+
+    def mid_task_start(self, obj_rest, obj_half, target, gen) -> MidTaskStart:
+        """Standing near the object, on any side, facing it within `NEAR_YAW_NOISE`: where
+        LH1's Climb begins, beside the box Carry has just put down. The single-skill task's
+        default start (2.5 m off, facing it) never shows a policy that state, and one that
+        climbed from there walked into the box from LH1's starts and pushed it away
+        (results/laptop/README.md, C8). The object rests where it rests, axis-aligned."""
+        n, dev = len(obj_rest), obj_rest.device
+
+        def uniform(lo: float, hi: float) -> torch.Tensor:
+            return lo + (hi - lo) * torch.rand(n, generator=gen, device=gen.device).to(dev)
+
+        side, gap, turn = uniform(-math.pi, math.pi), uniform(*NEAR_RANGE), uniform(-NEAR_YAW_NOISE, NEAR_YAW_NOISE)
+        reach = obj_half[:, :2].norm(dim=-1) + gap
+        root_xy = obj_rest[:, :2] + torch.stack((side.cos(), side.sin()), -1) * reach[:, None]
+        quat = torch.zeros(n, 4, device=dev)
+        quat[:, 0] = 1.0
+        return MidTaskStart(root_xy, wrap_angle(side + math.pi + turn), torch.full((n,), START_HEIGHT, device=dev),
+                            torch.zeros(n, NUM_DOF, device=dev), obj_rest.clone(), quat,
+                            held=torch.zeros(n, dtype=torch.bool, device=dev))
 
     def oracle(self, ctx: SkillContext, cmd: OracleCommand, active: torch.Tensor) -> None:
         """Rise until the feet clear the top, move over the climb point, stand on it."""
