@@ -17,8 +17,8 @@ Writes `<out>/gpu_check.json` and `<out>/gpu_check.md` (device name, versions, f
 prints the Markdown; the JSON is rewritten after each section, so a run stopped early keeps what
 it measured. A section that fails is reported (its error in the JSON and the Markdown) and the
 next one runs; if capturing a CUDA graph fails, the step is measured again with
-`sim.cuda_graph=false` and the report says so. The first warp section includes compiling the kernels (reported apart:
-`compile_s`); with a warm kernel cache it takes seconds.
+`sim.cuda_graph=false` and the report says so. The first warp section includes compiling the
+kernels (reported apart: `compile_s`); with a warm kernel cache it takes seconds.
 """
 
 from __future__ import annotations
