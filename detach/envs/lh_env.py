@@ -15,7 +15,6 @@ What an evaluator reads: `extras["episode_progress"]` at every step where some e
 from __future__ import annotations
 
 import math
-
 import time
 from dataclasses import dataclass, replace
 

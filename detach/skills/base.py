@@ -113,9 +113,9 @@ class Skill:
     request is refused and a held object let go: a Climb policy that could lift the box it
     is to climb carried it away instead (the climb point moves with the box)."""
     mid_task_reads_target: ClassVar[bool] = True
-    """`mid_task_start` reads the subtask's fixed target (Carry's destination); a skill whose
-    starts need only the object's place (Climb) has mid-task starts with a target drawn from
-    the object too."""
+    """`mid_task_start` reads the subtask's fixed target (Carry's destination). False for a
+    skill whose starts need only the object's place (Climb): its mid-task starts also apply
+    to subtasks whose target comes from the object (no fixed target)."""
     stats: ClassVar[dict[str, torch.dtype]] = {}
     """Per-subtask statistics [N, S] it accumulates, by name and dtype (zeroed at reset)."""
     termination_names: ClassVar[tuple[str, ...]] = ()

@@ -110,6 +110,7 @@ class Climb(Skill):
     motion_labels = ("step_up", "walk")
     sources = ("scene", "tarpos")
     needs_object = True
+    mid_task_reads_target = False
     reward_terms = {"approach": RewardTerm(climb_approach, 0.2), "elevation": RewardTerm(elevation, 0.5),
                     "feet_height": RewardTerm(feet_height, 0.3)}
 
@@ -129,8 +130,6 @@ class Climb(Skill):
 
     def distance(self, ctx: SkillContext) -> torch.Tensor:
         return climb_distance(ctx.state.root_pos, ctx.target)
-
-    mid_task_reads_target = False
 
     def mid_task_start(self, obj_rest, obj_half, target, gen) -> MidTaskStart:
         """Standing near the object, on any side, facing it within `NEAR_YAW_NOISE`: where
