@@ -16,7 +16,7 @@ import torch
 from detach.character.body import BODY_NAMES, HANDS, START_HEIGHT
 from detach.skills.base import MidTaskStart, PlanError, RewardTerm, Skill, Subtask
 from detach.skills.context import OracleCommand, SkillContext
-from detach.skills.kernels import NEAR, approach, approach_velocity
+from detach.skills.kernels import NEAR, approach, approach_velocity, uniform_draw
 from detach.skills.registry import register_skill
 from detach.skills.scripting import hinge_index
 from detach.torch_math import index_on, point_box_distance, quat_from_yaw, quat_rotate, wrap_angle
@@ -204,7 +204,7 @@ class Carry(Skill):
         n, dev = len(obj_rest), obj_rest.device
 
         def uniform(lo: float, hi: float) -> torch.Tensor:
-            return lo + (hi - lo) * torch.rand(n, generator=gen, device=gen.device).to(dev)
+            return uniform_draw(n, lo, hi, gen, dev)
 
         u, noise, draw = uniform(0, 1), uniform(-HELD_YAW_NOISE, HELD_YAW_NOISE), uniform(0, 1)
         side, dist, turn = uniform(-APPROACH_SPREAD, APPROACH_SPREAD), uniform(*APPROACH_RANGE), \

@@ -25,9 +25,9 @@ import torch
 from detach.character.body import BODY_NAMES, FEET, FLOOR_TO_SOLE, FOOT_TO_SOLE, NUM_DOF, START_HEIGHT
 from detach.skills.base import MidTaskStart, RewardTerm, Skill, Subtask
 from detach.skills.context import OracleCommand, SkillContext
-from detach.skills.kernels import approach
+from detach.skills.kernels import approach, uniform_draw
 from detach.skills.registry import register_skill
-from detach.torch_math import box_corners_fast, index_on, quat_rotate, wrap_angle
+from detach.torch_math import box_corners_fast, index_on, quat_from_yaw, quat_rotate, wrap_angle
 
 
 def climb_distance(root_pos: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -140,15 +140,14 @@ class Climb(Skill):
         n, dev = len(obj_rest), obj_rest.device
 
         def uniform(lo: float, hi: float) -> torch.Tensor:
-            return lo + (hi - lo) * torch.rand(n, generator=gen, device=gen.device).to(dev)
+            return uniform_draw(n, lo, hi, gen, dev)
 
         side, gap, turn = uniform(-math.pi, math.pi), uniform(*NEAR_RANGE), uniform(-NEAR_YAW_NOISE, NEAR_YAW_NOISE)
         reach = obj_half[:, :2].norm(dim=-1) + gap
         root_xy = obj_rest[:, :2] + torch.stack((side.cos(), side.sin()), -1) * reach[:, None]
-        quat = torch.zeros(n, 4, device=dev)
-        quat[:, 0] = 1.0
         return MidTaskStart(root_xy, wrap_angle(side + math.pi + turn), torch.full((n,), START_HEIGHT, device=dev),
-                            torch.zeros(n, NUM_DOF, device=dev), obj_rest.clone(), quat,
+                            torch.zeros(n, NUM_DOF, device=dev), obj_rest.clone(),
+                            quat_from_yaw(torch.zeros(n, device=dev)),
                             held=torch.zeros(n, dtype=torch.bool, device=dev))
 
     def oracle(self, ctx: SkillContext, cmd: OracleCommand, active: torch.Tensor) -> None:

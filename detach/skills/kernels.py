@@ -27,3 +27,8 @@ def approach(ctx: SkillContext, goal: torch.Tensor) -> torch.Tensor:
     d = (goal[:, :2] - root[:, :2]).norm(dim=-1)
     r = 0.5 * torch.exp(-0.5 * d * d) + 0.5 * approach_velocity(ctx.state.body_lin[:, 0], root, goal)
     return torch.where(d < NEAR, torch.ones_like(r), r)
+
+
+def uniform_draw(n: int, lo: float, hi: float, gen: torch.Generator, device: torch.device) -> torch.Tensor:
+    """[n] uniform in [lo, hi) from gen (on its own device), on device: mid-task starts' draws."""
+    return lo + (hi - lo) * torch.rand(n, generator=gen, device=gen.device).to(device)
