@@ -9,7 +9,7 @@ import pytest
 
 from detach.config import resolve
 from detach.eval.metrics import egr, mean_interval, sgr, success_rate, wilson_interval
-from detach.run_contract import TF_TOPIC, EpisodeFrame, SceneMessage, SceneObject
+from detach.run_contract import METRICS_TOPIC, TF_TOPIC, EpisodeFrame, SceneMessage, SceneObject
 from detach.runs.folder import RunFolder, find_runs
 from detach.runs.mcap_log import RunLogWriter, iter_messages, read_episodes, read_metrics, read_scene
 
@@ -129,6 +129,36 @@ def test_append_keeps_earlier_messages(tmp_path: Path) -> None:
     assert [m["iteration"] for m in read_metrics(path)] == [0, 1, 2, 3, 4, 5]
     assert read_scene(path).objects[0].name == "box"
     assert sum(len(v) for v in read_episodes(path).values()) == 4
+
+
+def test_append_copies_earlier_messages_byte_for_byte(tmp_path: Path) -> None:
+    """An evaluation or resume reopens the log with append=True, which copies every earlier
+    message into a fresh file. It used to decode and re-encode each one as JSON: 128 of a
+    climb run's 141 evaluation seconds went to that copy of its 247 MB log. The copy now
+    passes each message's bytes through untouched (only /metrics is read, when a resume drops
+    iterations), so a message in any JSON spelling survives exactly."""
+    from mcap.reader import make_reader
+
+    path = tmp_path / "log.mcap"
+    _write_log(path, frames=2)
+    spelled = b'{ "iteration": 9,  "stage": "joint", "Train/mean_reward": 1.50 }'
+    with RunLogWriter(path, append=True) as log:
+        log.write_raw(METRICS_TOPIC, spelled, 123)
+
+    def payloads() -> list[tuple[str, int, bytes]]:
+        with open(path, "rb") as f:
+            return [(ch.topic, m.log_time, m.data) for _s, ch, m in make_reader(f).iter_messages(log_time_order=False)]
+
+    before = payloads()
+    with RunLogWriter(path, append=True):
+        pass
+    assert payloads() == before
+    assert (METRICS_TOPIC, 123, spelled) in before
+    with RunLogWriter(path, append=True, metrics_until=4):
+        pass
+    after = payloads()
+    assert (METRICS_TOPIC, 123, spelled) not in after, "iteration 9 is past the resumed checkpoint"
+    assert after == [p for p in before if p[2] != spelled]
 
 
 def test_resumed_log_keeps_only_iterations_up_to_the_checkpoint(tmp_path: Path) -> None:
