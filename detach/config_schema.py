@@ -339,6 +339,11 @@ class TrainCfg:
     weighted sum; otherwise the weighted sum is normalised as one."""
     amp: AmpCfg = AmpCfg()
     stages: StagesCfg = StagesCfg()
+    teachers: dict[str, str] = field(default_factory=dict)
+    """Kickstarting (`detach.train.teachers`): skill -> a run folder or checkpoint whose policy
+    the student's mean action is pulled toward on that skill's steps, beside PPO; empty = off."""
+    teacher_weight: float = 1.0
+    """Weight of the teachers' loss (mean squared action difference per step)."""
     torch_threads: int = 0
     """torch CPU threads of training, evaluation and play; 0 keeps torch's default (one per core,
     or OMP_NUM_THREADS). Set 1 when two runs share the cores."""
@@ -432,6 +437,7 @@ VALUE_RANGES: dict[str, Range] = {
     "train.clip_param": POSITIVE, "train.entropy_coef": AT_LEAST_0, "train.value_loss_coef": AT_LEAST_0,
     "train.num_learning_epochs": AT_LEAST_1, "train.num_mini_batches": AT_LEAST_1,
     "train.max_grad_norm": POSITIVE, "train.init_action_std": POSITIVE, "train.torch_threads": AT_LEAST_0,
+    "train.teacher_weight": AT_LEAST_0,
     "train.stages.pretrain": AT_LEAST_0, "train.stages.fusion": AT_LEAST_0, "train.stages.joint": AT_LEAST_0,
     "train.amp.task_reward_weight": AT_LEAST_0, "train.amp.style_reward_weight": AT_LEAST_0,
     "train.amp.grad_penalty": AT_LEAST_0, "train.amp.logit_reg": AT_LEAST_0, "train.amp.weight_decay": AT_LEAST_0,

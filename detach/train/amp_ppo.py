@@ -20,6 +20,9 @@ What it adds to PPO:
   update; only `aux_loss_fn(obs, stage)` is minimised (encoder pre-training). In other stages
   PPO updates and then `aux_loss_fn` runs over the same rollout (alternating optimisation
   with the PPO optimiser, whose parameter list skips frozen parameters' missing gradients).
+- Teachers (`train.teachers`, `detach.train.teachers`): after PPO's update, `teacher_loss_fn`
+  is minimised with PPO's optimiser for as many epochs and mini-batches as PPO's own update
+  (not in DETACH's "pretrain" stage).
 
 Multi-GPU (rsl-rl's distributed path, `torchrun`): besides PPO's actor and critic, the
 discriminators start from rank 0's weights and normaliser statistics (`broadcast_parameters`),
@@ -46,6 +49,7 @@ from detach.train.discriminator import AmpDiscriminator, ReplayBuffer
 REPLAY_KEY = "amp_replay_state"
 """Key of the AMP replay buffer's state in `AmpPPO.save()`'s dict."""
 AuxLossFn = Callable[[TensorDict, str], tuple[torch.Tensor, dict[str, float]]]
+TeacherLossFn = Callable[[TensorDict], tuple[torch.Tensor, dict[str, float]]]
 ReferenceSampler = Callable[[int], tuple[torch.Tensor, torch.Tensor]]
 
 
@@ -74,6 +78,7 @@ class AmpPPO(PPO):
         self.per_objective_norm = per_objective_advantage_norm
         self.reference_sampler: ReferenceSampler | None = None
         self.aux_loss_fn: AuxLossFn | None = None
+        self.teacher_loss_fn: TeacherLossFn | None = None
         self.stage = "ppo"
         heads = tuple(getattr(critic, "value_objectives", ()) or ())
         self.num_objectives = len(heads) if heads else int(getattr(critic, "num_objectives", 1))
@@ -192,6 +197,8 @@ class AmpPPO(PPO):
             losses.update(self._update_discriminators())
         if self.aux_loss_fn is not None:
             losses.update(self._update_aux(obs))
+        if self.teacher_loss_fn is not None and self.stage != "pretrain":
+            losses.update(self._minimise(self.teacher_loss_fn, obs, self.num_learning_epochs))
         count = max(self._reward_sums["count"], 1)
         losses["reward_task"] = self._reward_sums["task"] / count
         if self.amp_enabled:
@@ -244,22 +251,30 @@ class AmpPPO(PPO):
         return sums
 
     def _update_aux(self, obs: TensorDict) -> dict[str, float]:
+        return self._minimise(lambda batch: self.aux_loss_fn(batch, self.stage), obs, 1)
+
+    def _minimise(self, loss_fn: TeacherLossFn, obs: TensorDict, epochs: int) -> dict[str, float]:
+        """`epochs` passes of PPO's mini-batches over the rollout's observations, one step of
+        PPO's optimiser on `loss_fn` each; returns the mean of each logged value. The teachers'
+        loss (`train.teachers`) takes as many steps as PPO's update, so that neither
+        objective's steps outnumber the other's."""
         sums: dict[str, float] = {}
         batch = max(obs.batch_size[0] // self.num_mini_batches, 1)
+        params = [p for g in self.optimizer.param_groups for p in g["params"]]
         steps = 0
-        perm = torch.randperm(obs.batch_size[0], device=self.device)
-        for start in range(0, perm.numel() - batch + 1, batch):
-            loss, logs = self.aux_loss_fn(obs[perm[start:start + batch]], self.stage)
-            if loss.requires_grad:
-                self.optimizer.zero_grad()
-                loss.backward()
-                params = [p for g in self.optimizer.param_groups for p in g["params"]]
-                self._average_gradients(params)
-                torch.nn.utils.clip_grad_norm_(params, self.max_grad_norm)
-                self.optimizer.step()
-            for key, value in logs.items():
-                sums[key] = sums.get(key, 0.0) + float(value)
-            steps += 1
+        for _ in range(epochs):
+            perm = torch.randperm(obs.batch_size[0], device=self.device)
+            for start in range(0, perm.numel() - batch + 1, batch):
+                loss, logs = loss_fn(obs[perm[start:start + batch]])
+                if loss.requires_grad:
+                    self.optimizer.zero_grad()
+                    loss.backward()
+                    self._average_gradients(params)
+                    torch.nn.utils.clip_grad_norm_(params, self.max_grad_norm)
+                    self.optimizer.step()
+                for key, value in logs.items():
+                    sums[key] = sums.get(key, 0.0) + float(value)
+                steps += 1
         return {k: v / max(steps, 1) for k, v in sums.items()}
 
     # ------------------------------------------------------------------ multi-GPU

@@ -25,7 +25,8 @@ import numpy as np
 import torch
 
 from detach.run_contract import (
-    atomic_writer, checkpoint_file, checkpoint_iteration, fsync_folder, replay_file, replay_iteration,
+    CHECKPOINT_DIR, CONFIG_FILE, atomic_writer, checkpoint_file, checkpoint_iteration, fsync_folder, replay_file,
+    replay_iteration,
 )
 from detach.yaml_source import ConfigError
 
@@ -188,3 +189,19 @@ def restore_rng(state: dict[str, Any], env_generator: torch.Generator | None = N
         torch.cuda.set_rng_state_all([s.cpu() for s in state["cuda"]])
     if "env" in state and env_generator is not None:
         env_generator.set_state(state["env"].cpu())
+
+
+def find_init_checkpoint(source: str) -> tuple[Path, Path | None]:
+    """(checkpoint file, its run folder or None) of `train.init_from`: a run folder (its
+    latest checkpoint) or a checkpoint file."""
+    path = Path(source)
+    if path.is_dir():
+        found = sorted((it, p) for p in (path / CHECKPOINT_DIR).glob("*.pt")
+                       if (it := checkpoint_iteration(p.name)) is not None)
+        if not found:
+            raise ConfigError(f"train.init_from: the run folder {path} has no checkpoint")
+        return found[-1][1], path
+    if path.is_file():
+        run = path.parent.parent
+        return path, run if (run / CONFIG_FILE).is_file() else None
+    raise ConfigError(f"train.init_from: {source} is neither a run folder nor a checkpoint file")

@@ -18,7 +18,8 @@ from detach.sim import SimConfigError, check_backend, check_sim, sim_settings
 from detach.config import ConfigError
 from detach.skills import PlanError, canonical_name
 from detach.skills.plan import compile_plan
-from detach.train.setup import find_init_checkpoint
+from detach.train.checkpoints import find_init_checkpoint
+from detach.train.teachers import teacher_source
 
 
 def complete_run_config(cfg: RunConfig) -> RunConfig:
@@ -70,6 +71,12 @@ def complete_run_config(cfg: RunConfig) -> RunConfig:
             raise origin.error(("train", "amp", "skill_weights", skill), str(exc)) from None
         if not weight >= 0:
             raise origin.error(("train", "amp", "skill_weights", skill), f"expected a weight >= 0, found {weight}")
+    for skill, source in cfg.train.teachers.items():
+        try:
+            canonical_name(skill)
+            teacher_source(source)
+        except ValueError as exc:
+            raise origin.error(("train", "teachers", skill), str(exc)) from None
     base_key = cfg.model.builds_on()
     if base_key and not cfg.train.init_from:
         raise origin.error(("model", base_key), f"model {cfg.model_name} trains on top of an earlier stage's "

@@ -16,19 +16,20 @@ import numpy as np
 import torch
 from rsl_rl.modules import EmpiricalNormalization
 
-from detach.character import character_class
 from detach.config import ConfigError, load_run_config
 from detach.config_schema import RunConfig, TaskCfg
 from detach.envs.lh_env import LHEnv, make_env
 from detach.models.factory import DEFAULT_OBS_GROUPS, rsl_rl_model_cfgs
 from detach.models.losses import combine_aux_losses
 from detach.motion import default_motion_lib
-from detach.run_contract import CHECKPOINT_DIR, CONFIG_FILE, checkpoint_iteration
+from detach.run_contract import CONFIG_FILE
 from detach.skills import canonical_name
 from detach.train.distributed import local_device, rank
+from detach.train.checkpoints import find_init_checkpoint
 from detach.train.motion_bridge import amp_part_indices, amp_reference_sampler, reset_reference_sampler
 from detach.train.runner import DetachRunner, MetricsSink
 from detach.train.schedule import stage_lengths
+from detach.train.trained_actor import default_action_std
 from scene_builder.assets import ensure_assets
 
 
@@ -52,11 +53,6 @@ def seed_everything(seed: int) -> None:
     random.seed(seed)
     np.random.seed(seed)
     torch.manual_seed(seed)
-
-
-def default_action_std(cfg: RunConfig) -> float:
-    """The initial action std of the run's character (`model.init_noise_std: null`)."""
-    return character_class(cfg.env.character).action_std
 
 
 def logger_cfg(cfg: RunConfig) -> str | dict:
@@ -148,6 +144,11 @@ def build_runner(cfg: RunConfig, checkpoint_dir: Path | None, device: str, log: 
             return total, parts
 
         alg.aux_loss_fn = aux_loss
+    if cfg.train.teachers:
+        from detach.train.teachers import load_teachers  # it reads checkpoints with this module's helpers
+
+        teachers = load_teachers(cfg, env, device)
+        alg.teacher_loss_fn = lambda obs: teachers.loss(alg.actor, obs)
     return env, runner
 
 
@@ -157,22 +158,6 @@ def train_worker(cfg: RunConfig) -> None:
     training starts."""
     _env, runner = build_runner(cfg, None, cfg.device, log=None, progress=False)
     runner.learn(cfg.train.max_iterations, init_at_random_ep_len=cfg.train.init_at_random_ep_len)
-
-
-def find_init_checkpoint(source: str) -> tuple[Path, Path | None]:
-    """(checkpoint file, its run folder or None) of `train.init_from`: a run folder (its
-    latest checkpoint) or a checkpoint file."""
-    path = Path(source)
-    if path.is_dir():
-        found = sorted((it, p) for p in (path / CHECKPOINT_DIR).glob("*.pt")
-                       if (it := checkpoint_iteration(p.name)) is not None)
-        if not found:
-            raise ConfigError(f"train.init_from: the run folder {path} has no checkpoint")
-        return found[-1][1], path
-    if path.is_file():
-        run = path.parent.parent
-        return path, run if (run / CONFIG_FILE).is_file() else None
-    raise ConfigError(f"train.init_from: {source} is neither a run folder nor a checkpoint file")
 
 
 def _fit(target: dict[str, torch.Tensor], source: dict[str, torch.Tensor], new: tuple[str, ...]) -> list[str]:

@@ -1,0 +1,97 @@
+"""Teacher policies per skill (`train.teachers`): kickstarting one network from skill experts.
+
+Kickstarting (Schmitt et al. 2018, "Kickstarting Deep Reinforcement Learning"): while PPO
+trains the student on the task reward, an auxiliary loss pulls the student's mean action
+toward a frozen teacher's on the steps of the teacher's skill,
+
+    L = train.teacher_weight * (1/B) * sum_b sum_k [skill(b) = k] * mean_a (mu(o_b) - mu_k(o_b))^2,
+
+over the same rollout PPO learns from (the student's own states, so the teacher corrects
+where the student goes, as DAgger does). Why here: one network taught a new skill by PPO
+alone loses the skills it had (results/laptop/README.md: Climb learned at its own step took
+Follow from 1.00 to 0.00), while a policy trained on one skill in place does that skill; a
+teacher per skill keeps each skill's behaviour as the target while the rewards of every
+skill are paid. A skill's teacher may be the very policy the student starts from (a frozen
+copy of `train.init_from`), which makes the term a preservation term for the skills that
+policy already has.
+
+The skill of a step is the `task` observation group (the skill one-hot, registry order); a
+teacher is any run folder (its newest checkpoint) or checkpoint file of a run whose model
+builds for this env: it keeps its own observation normalisers.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+import torch
+from tensordict import TensorDict
+
+from detach.config import load_run_config
+from detach.config_schema import RunConfig
+from detach.envs.lh_env import LHEnv
+from detach.run_contract import CONFIG_FILE
+from detach.skills import canonical_name, skill_names
+from detach.train.checkpoints import find_init_checkpoint
+from detach.train.trained_actor import load_trained_actor
+
+def teacher_source(source: str) -> tuple[Path, Path]:
+    """(checkpoint file, run folder) of a teacher: a run folder (its latest checkpoint) or a
+    checkpoint file inside one (ValueError: the teacher's model config lives in its run
+    folder's config.yaml)."""
+    try:
+        checkpoint, run = find_init_checkpoint(source)
+    except Exception as exc:  # ConfigError worded for train.init_from
+        raise ValueError(str(exc).removeprefix("train.init_from: ")) from None
+    if run is None or not (run / CONFIG_FILE).is_file():
+        raise ValueError(f"{source}: a teacher needs its run folder's {CONFIG_FILE} (the model it was trained "
+                         "with); give the run folder or a checkpoint inside its checkpoints/")
+    return checkpoint, run
+
+
+@dataclass
+class Teachers:
+    """Frozen teacher actors, each with the one-hot column of its skill."""
+
+    skills: list[str]
+    columns: list[int]
+    actors: list[torch.nn.Module]
+    weight: float
+
+    def loss(self, student: torch.nn.Module, obs: TensorDict) -> tuple[torch.Tensor, dict[str, float]]:
+        """(weighted kickstarting loss, per-skill mean squared action difference and share of
+        the batch) over a batch of rollout observations."""
+        mu = student(obs)
+        onehot = obs["task"]
+        total = torch.zeros((), device=mu.device)
+        logs: dict[str, float] = {}
+        for skill, column, teacher in zip(self.skills, self.columns, self.actors):
+            mask = onehot[:, column]
+            with torch.no_grad():
+                target = teacher(obs)
+            sq = (mu - target).square().mean(-1)
+            total = total + (sq * mask).sum()
+            count = mask.sum()
+            logs[f"teacher/{skill}/mse"] = float((sq.detach() * mask).sum() / count.clamp(min=1.0))
+            logs[f"teacher/{skill}/share"] = float(count / mask.numel())
+        total = self.weight * total / max(onehot.shape[0], 1)
+        logs["teacher/loss"] = float(total.detach())
+        return total, logs
+
+
+def load_teachers(cfg: RunConfig, env: LHEnv, device: str | torch.device) -> Teachers | None:
+    """The teachers of `cfg.train.teachers` built for `env` (None when there are none)."""
+    if not cfg.train.teachers:
+        return None
+    names = skill_names()
+    skills, columns, actors = [], [], []
+    for skill, source in cfg.train.teachers.items():
+        checkpoint, run = teacher_source(source)
+        actor, _state = load_trained_actor(load_run_config(run / CONFIG_FILE), env, checkpoint, device)
+        for p in actor.parameters():
+            p.requires_grad_(False)
+        name = canonical_name(skill)
+        skills.append(name)
+        columns.append(names.index(name))
+        actors.append(actor)
+    return Teachers(skills, columns, actors, cfg.train.teacher_weight)
