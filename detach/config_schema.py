@@ -344,6 +344,9 @@ class TrainCfg:
     the student's mean action is pulled toward on that skill's steps, beside PPO; empty = off."""
     teacher_weight: float = 1.0
     """Weight of the teachers' loss (mean squared action difference per step)."""
+    teacher_only: bool = False
+    """With teachers: distil them alone (PPO collects the student's rollouts but does not
+    update; the critic and the rewards do not train the policy)."""
     torch_threads: int = 0
     """torch CPU threads of training, evaluation and play; 0 keeps torch's default (one per core,
     or OMP_NUM_THREADS). Set 1 when two runs share the cores."""

@@ -105,15 +105,16 @@ def test_coacd_over_budget_escalates_the_threshold_and_reports_it(monkeypatch, t
 
 def test_a_real_coacd_run_is_killed_at_its_budget_and_the_fallback_is_bounded(tmp_path):
     """A budget far below what CoACD needs: every try is killed, the part hulls are used, and
-    the whole call stays within the budget plus process start-ups."""
+    the whole call stays within the budget plus process start-ups. (At 0.6 s, CoACD with one
+    OpenMP thread finished this mesh in time in 2 of 3 runs: the test failed by chance.)"""
     mesh = step()
     t0 = time.perf_counter()
-    pieces, report = convex_hulls(mesh, "step", budget_s=0.6)
+    pieces, report = convex_hulls(mesh, "step", budget_s=0.2)
     elapsed = time.perf_counter() - t0
     assert report.method == "clusters" and all(a["outcome"] == "timeout" for a in report.attempts)
     assert 1 <= len(pieces) <= 16 and all(p.is_convex for p in pieces)
-    assert elapsed < 0.6 + 4 * 1.5, elapsed  # budget + at most ~1.5 s per kill and start-up
-    assert "ran out of its 0.6 s budget" in report.warning(0.05, len(pieces))
+    assert elapsed < 0.2 + 4 * 1.5, elapsed  # budget + at most ~1.5 s per kill and start-up
+    assert "ran out of its 0.2 s budget" in report.warning(0.05, len(pieces))
     lo = np.min([p.bounds[0] for p in pieces], axis=0)
     hi = np.max([p.bounds[1] for p in pieces], axis=0)
     assert np.allclose(lo, mesh.bounds[0], atol=1e-6) and np.allclose(hi, mesh.bounds[1], atol=1e-6)

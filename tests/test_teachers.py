@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+import torch
 
 from detach import cli
 from detach.config import resolve
@@ -43,12 +44,28 @@ def test_a_student_moves_toward_its_teacher(teacher_run: Path, tmp_path: Path) -
     assert max(mse[-2:]) < 0.6 * mse[0], mse
 
 
+def test_teacher_only_distils_without_a_ppo_update(teacher_run: Path, tmp_path: Path) -> None:
+    """`train.teacher_only`: the critic keeps its initial weights (no PPO update), the actor
+    still moves toward the teacher."""
+    out = tmp_path / "runs"
+    assert cli.main(["train", FOLLOW, "--model", "mlp", "--runs", str(out), *TINY, "train.max_iterations=4",
+                     "--no-eval", "--seed", "5", f"+train.teachers.follow={teacher_run}", "train.teacher_only=true",
+                     "train.learning_rate=1e-3", "train.schedule=fixed", "train.save_interval=1"]) == 0
+    (run,) = find_runs(out)
+    first, last = (torch.load(run.checkpoints / f"model_{i}.pt", weights_only=True) for i in (1, 3))
+    critic = [k for k in first["critic_state_dict"] if "normalizer" not in k]
+    assert critic and all(torch.equal(first["critic_state_dict"][k], last["critic_state_dict"][k]) for k in critic)
+    mse = [m["Loss/teacher/follow/mse"] for m in read_metrics(run.log_path)]
+    assert mse[-1] < 0.6 * mse[0], mse
+    assert "Loss/surrogate" not in read_metrics(run.log_path)[-1]
+
+
 def test_a_skill_without_steps_in_the_batch_adds_nothing(teacher_run: Path) -> None:
     """A Carry teacher in a Follow run: no step is Carry's, so the loss is 0 and moves nothing."""
     cfg = complete_run_config(resolve(FOLLOW, "mlp", TINY + [f"+train.teachers.carry={teacher_run}"]))
     env, runner = build_runner(cfg, None, "cpu", progress=False)
     loss, logs = runner.alg.teacher_loss_fn(env.get_observations())
-    assert float(loss) == 0.0 and logs["teacher/carry/share"] == 0.0
+    assert float(loss.detach()) == 0.0 and logs["teacher/carry/share"] == 0.0
     loss.backward()
     assert all(p.grad is None or not p.grad.any() for p in runner.alg.actor.parameters())
 
@@ -57,6 +74,7 @@ def test_a_skill_without_steps_in_the_batch_adds_nothing(teacher_run: Path) -> N
     ("+train.teachers.flow=RUN", "flow"),
     ("+train.teachers.follow=/nowhere/run", "neither a run folder nor a checkpoint file"),
     ("train.teacher_weight=-1", "teacher_weight"),
+    ("train.teacher_only=true", "teacher_only"),
 ])
 def test_bad_teachers_are_one_line_errors(teacher_run: Path, tmp_path: Path, capsys, override: str,
                                           expected: str) -> None:

@@ -22,7 +22,8 @@ What it adds to PPO:
   with the PPO optimiser, whose parameter list skips frozen parameters' missing gradients).
 - Teachers (`train.teachers`, `detach.train.teachers`): after PPO's update, `teacher_loss_fn`
   is minimised with PPO's optimiser for as many epochs and mini-batches as PPO's own update
-  (not in DETACH's "pretrain" stage).
+  (not in DETACH's "pretrain" stage); with `teacher_only` PPO does not update at all (policy
+  distillation on the student's own rollouts, DAgger-style).
 
 Multi-GPU (rsl-rl's distributed path, `torchrun`): besides PPO's actor and critic, the
 discriminators start from rank 0's weights and normaliser statistics (`broadcast_parameters`),
@@ -79,6 +80,8 @@ class AmpPPO(PPO):
         self.reference_sampler: ReferenceSampler | None = None
         self.aux_loss_fn: AuxLossFn | None = None
         self.teacher_loss_fn: TeacherLossFn | None = None
+        self.teacher_only = False
+        """Distillation: the teachers' loss alone trains the policy (PPO collects, no PPO update)."""
         self.stage = "ppo"
         heads = tuple(getattr(critic, "value_objectives", ()) or ())
         self.num_objectives = len(heads) if heads else int(getattr(critic, "num_objectives", 1))
@@ -188,7 +191,7 @@ class AmpPPO(PPO):
     # ------------------------------------------------------------------ learning
     def update(self) -> dict[str, float]:
         obs = self.storage.observations.flatten(0, 1)
-        if self.stage == "pretrain":
+        if self.stage == "pretrain" or self.teacher_only:
             self.storage.clear()
             losses: dict[str, float] = {}
         else:

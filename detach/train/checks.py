@@ -77,6 +77,9 @@ def complete_run_config(cfg: RunConfig) -> RunConfig:
             teacher_source(source)
         except ValueError as exc:
             raise origin.error(("train", "teachers", skill), str(exc)) from None
+    if cfg.train.teacher_only and not cfg.train.teachers:
+        raise origin.error(("train", "teacher_only"), "distils the policies of train.teachers, and there are none: "
+                           "add +train.teachers.SKILL=RUN or set it to false")
     base_key = cfg.model.builds_on()
     if base_key and not cfg.train.init_from:
         raise origin.error(("model", base_key), f"model {cfg.model_name} trains on top of an earlier stage's "

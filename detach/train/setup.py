@@ -149,6 +149,7 @@ def build_runner(cfg: RunConfig, checkpoint_dir: Path | None, device: str, log: 
 
         teachers = load_teachers(cfg, env, device)
         alg.teacher_loss_fn = lambda obs: teachers.loss(alg.actor, obs)
+        alg.teacher_only = cfg.train.teacher_only
     return env, runner
 
 
