@@ -1,4 +1,7 @@
-"""A run's trained actor, rebuilt for an env: what evaluation, export and play all start from."""
+"""A run's trained actor, rebuilt for an env: what evaluation, export and play all start from.
+
+The function lives in `detach.train.trained_actor`, below training, because a teacher
+(`train.teachers`) is loaded the same way; this name stays for the runs layer and scripts."""
 
 from __future__ import annotations
 

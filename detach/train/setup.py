@@ -24,11 +24,12 @@ from detach.models.losses import combine_aux_losses
 from detach.motion import default_motion_lib
 from detach.run_contract import CONFIG_FILE
 from detach.skills import canonical_name
-from detach.train.distributed import local_device, rank
 from detach.train.checkpoints import find_init_checkpoint
+from detach.train.distributed import local_device, rank
 from detach.train.motion_bridge import amp_part_indices, amp_reference_sampler, reset_reference_sampler
 from detach.train.runner import DetachRunner, MetricsSink
 from detach.train.schedule import stage_lengths
+from detach.train.teachers import load_teachers
 from detach.train.trained_actor import default_action_std
 from scene_builder.assets import ensure_assets
 
@@ -145,8 +146,6 @@ def build_runner(cfg: RunConfig, checkpoint_dir: Path | None, device: str, log: 
 
         alg.aux_loss_fn = aux_loss
     if cfg.train.teachers:
-        from detach.train.teachers import load_teachers  # it reads checkpoints with this module's helpers
-
         teachers = load_teachers(cfg, env, device)
         alg.teacher_loss_fn = lambda obs: teachers.loss(alg.actor, obs)
         alg.teacher_only = cfg.train.teacher_only

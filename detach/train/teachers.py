@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+
 import torch
 from tensordict import TensorDict
 
@@ -34,6 +35,8 @@ from detach.run_contract import CONFIG_FILE
 from detach.skills import canonical_name, skill_names
 from detach.train.checkpoints import find_init_checkpoint
 from detach.train.trained_actor import load_trained_actor
+from detach.yaml_source import ConfigError
+
 
 def teacher_source(source: str) -> tuple[Path, Path]:
     """(checkpoint file, run folder) of a teacher: a run folder (its latest checkpoint) or a
@@ -41,7 +44,7 @@ def teacher_source(source: str) -> tuple[Path, Path]:
     folder's config.yaml)."""
     try:
         checkpoint, run = find_init_checkpoint(source)
-    except Exception as exc:  # ConfigError worded for train.init_from
+    except ConfigError as exc:  # worded for train.init_from
         raise ValueError(str(exc).removeprefix("train.init_from: ")) from None
     if run is None or not (run / CONFIG_FILE).is_file():
         raise ValueError(f"{source}: a teacher needs its run folder's {CONFIG_FILE} (the model it was trained "
