@@ -70,6 +70,19 @@ def test_a_skill_without_steps_in_the_batch_adds_nothing(teacher_run: Path) -> N
     assert all(p.grad is None or not p.grad.any() for p in runner.alg.actor.parameters())
 
 
+def test_a_policy_teaching_two_skills_is_loaded_once(teacher_run: Path) -> None:
+    """Follow and Carry from the same run (the preservation case): one actor, both skills."""
+    from detach.train.teachers import load_teachers
+
+    cfg = complete_run_config(resolve(FOLLOW, "mlp", TINY + [f"+train.teachers.follow={teacher_run}",
+                                                             f"+train.teachers.carry={teacher_run}"]))
+    env, runner = build_runner(cfg, None, "cpu", progress=False)
+    teachers = load_teachers(cfg, env, "cpu")
+    assert len(teachers.actors) == 1 and teachers.skills == [["follow", "carry"]]
+    _loss, logs = runner.alg.teacher_loss_fn(env.get_observations())
+    assert logs["teacher/follow/share"] == 1.0 and logs["teacher/carry/share"] == 0.0
+
+
 @pytest.mark.parametrize("override, expected", [
     ("+train.teachers.flow=RUN", "flow"),
     ("+train.teachers.follow=/nowhere/run", "neither a run folder nor a checkpoint file"),

@@ -54,11 +54,13 @@ def teacher_source(source: str) -> tuple[Path, Path]:
 
 @dataclass
 class Teachers:
-    """Frozen teacher actors, each with the one-hot column of its skill."""
+    """Frozen teacher actors, each with the skills it teaches (names and one-hot columns): a
+    policy that teaches several skills (the preservation case: Follow and Carry from the run
+    the student starts from) is loaded and run once."""
 
-    skills: list[str]
-    columns: list[int]
     actors: list[torch.nn.Module]
+    skills: list[list[str]]
+    columns: list[list[int]]
     weight: float
 
     def loss(self, student: torch.nn.Module, obs: TensorDict) -> tuple[torch.Tensor, dict[str, float]]:
@@ -68,33 +70,40 @@ class Teachers:
         onehot = obs["task"]
         total = torch.zeros((), device=mu.device)
         logs: dict[str, float] = {}
-        for skill, column, teacher in zip(self.skills, self.columns, self.actors):
-            mask = onehot[:, column]
+        for teacher, skills, columns in zip(self.actors, self.skills, self.columns):
             with torch.no_grad():
                 target = teacher(obs)
             sq = (mu - target).square().mean(-1)
-            total = total + (sq * mask).sum()
-            count = mask.sum()
-            logs[f"teacher/{skill}/mse"] = float((sq.detach() * mask).sum() / count.clamp(min=1.0))
-            logs[f"teacher/{skill}/share"] = float(count / mask.numel())
+            for skill, column in zip(skills, columns):
+                mask = onehot[:, column]
+                total = total + (sq * mask).sum()
+                count = mask.sum()
+                logs[f"teacher/{skill}/mse"] = float((sq.detach() * mask).sum() / count.clamp(min=1.0))
+                logs[f"teacher/{skill}/share"] = float(count / mask.numel())
         total = self.weight * total / max(onehot.shape[0], 1)
         logs["teacher/loss"] = float(total.detach())
         return total, logs
 
 
 def load_teachers(cfg: RunConfig, env: LHEnv, device: str | torch.device) -> Teachers | None:
-    """The teachers of `cfg.train.teachers` built for `env` (None when there are none)."""
+    """The teachers of `cfg.train.teachers` built for `env`, one per distinct checkpoint (None
+    when there are none)."""
     if not cfg.train.teachers:
         return None
     names = skill_names()
-    skills, columns, actors = [], [], []
+    by_checkpoint: dict[Path, int] = {}
+    teachers = Teachers([], [], [], cfg.train.teacher_weight)
     for skill, source in cfg.train.teachers.items():
         checkpoint, run = teacher_source(source)
-        actor, _state = load_trained_actor(load_run_config(run / CONFIG_FILE), env, checkpoint, device)
-        for p in actor.parameters():
-            p.requires_grad_(False)
+        key = checkpoint.resolve()
+        if key not in by_checkpoint:
+            actor, _state = load_trained_actor(load_run_config(run / CONFIG_FILE), env, checkpoint, device)
+            actor.requires_grad_(False)
+            by_checkpoint[key] = len(teachers.actors)
+            teachers.actors.append(actor)
+            teachers.skills.append([])
+            teachers.columns.append([])
         name = canonical_name(skill)
-        skills.append(name)
-        columns.append(names.index(name))
-        actors.append(actor)
-    return Teachers(skills, columns, actors, cfg.train.teacher_weight)
+        teachers.skills[by_checkpoint[key]].append(name)
+        teachers.columns[by_checkpoint[key]].append(names.index(name))
+    return teachers
