@@ -123,7 +123,7 @@ class ResetSampler:
         where picked: choosing the rows would need a host read."""
         n = len(ids)
         pick = self._rand(n) < self.cfg.env.mid_task_init_prob
-        start = skill.mid_task_start(self.obj_rest[objects], obj_half[objects], target.expand(n, 3), self.gen)
+        start = skill.mid_task_start(objects, self.obj_rest[objects], obj_half[objects], target.expand(n, 3), self.gen)
         if start is None:
             return None
         q, v = qpos.clone(), qvel.clone()

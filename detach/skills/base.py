@@ -182,13 +182,13 @@ class Skill:
         """Extra episode-ending conditions [N] bool (evaluated where the env is on this skill)."""
         return {}
 
-    def mid_task_start(self, obj_rest: torch.Tensor, obj_half: torch.Tensor, target: torch.Tensor,
-                       gen: torch.Generator) -> MidTaskStart | None:
+    def mid_task_start(self, objects: torch.Tensor, obj_rest: torch.Tensor, obj_half: torch.Tensor,
+                       target: torch.Tensor, gen: torch.Generator) -> MidTaskStart | None:
         """A start state from the middle of this skill's task for n episodes whose first
-        subtask is this skill's: obj_rest [n, 3] the object's resting bbox centre, obj_half
-        [n, 3] its half sizes, target [n, 3] the subtask's fixed target (NaN where it has none
-        and `mid_task_reads_target` is False). None (the default):
-        the skill has no such states, and its episodes start as configured (`env.init`)."""
+        subtask is this skill's: objects [n] the subtask's object (scene index), obj_rest [n, 3]
+        its resting bbox centre, obj_half [n, 3] its half sizes, target [n, 3] the subtask's
+        fixed target (NaN where it has none and `mid_task_reads_target` is False). None (the
+        default): the skill has no such states, and its episodes start as configured (`env.init`)."""
         return None
 
     def oracle(self, ctx: "SkillContext", cmd: "OracleCommand", active: torch.Tensor) -> None:

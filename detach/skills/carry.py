@@ -185,7 +185,7 @@ class Carry(Skill):
         if self.carrying is not None:
             self.carrying &= ~mask
 
-    def mid_task_start(self, obj_rest, obj_half, target, gen) -> MidTaskStart:
+    def mid_task_start(self, objects, obj_rest, obj_half, target, gen) -> MidTaskStart:
         """One of three starts, drawn per episode: (`APPROACH_SHARE`) standing some way from the
         box, turned partly away from it; (`PICK_UP_SHARE`) at the box, in the oracle's reach
         pose with the hands on its resting lid, not yet holding it; or (the rest) the box

@@ -131,7 +131,7 @@ class Climb(Skill):
     def distance(self, ctx: SkillContext) -> torch.Tensor:
         return climb_distance(ctx.state.root_pos, ctx.target)
 
-    def mid_task_start(self, obj_rest, obj_half, target, gen) -> MidTaskStart:
+    def mid_task_start(self, objects, obj_rest, obj_half, target, gen) -> MidTaskStart:
         """Standing near the object, on any side, facing it within `NEAR_YAW_NOISE`: where
         LH1's Climb begins, beside the box Carry has just put down. The single-skill task's
         default start (2.5 m off, facing it) never shows a policy that state, and one that

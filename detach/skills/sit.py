@@ -4,6 +4,12 @@ Target: `scene_K` (object K's sit point, `tarSitPos` of its asset: 0.1 m above t
 carried into the world by the object's current pose) or a fixed `tarpos_K`. Distance: 3-D
 from the pelvis to the target. Success (the paper: "the pelvis on the upper surface of the
 target object"): the transition fired.
+
+Mid-task starts (`env.mid_task_init_prob`) stand near the seat on whatever surface is there
+(the floor, or the platform a raised chair stands on), so that a policy sees what the seat
+term pays: it pays exp(-10 d^2), nothing beyond ~1 m, and a puppet that reached LH1's chair
+on its 1 m platform by hovering at its root servo's top, 1 m above the sit point, was paid
+by `approach` alone and never came down.
 """
 
 from __future__ import annotations
@@ -13,15 +19,33 @@ import math
 import numpy as np
 import torch
 
-from detach.skills.base import RewardTerm, Skill, Subtask
+from detach.character.body import NUM_DOF, START_HEIGHT
+from detach.skills.base import MidTaskStart, RewardTerm, Skill, Subtask
 from detach.skills.climb import object_point_world, object_points
 from detach.skills.context import OracleCommand, SkillContext
-from detach.skills.kernels import approach
+from detach.skills.kernels import approach, uniform_draw
 from detach.skills.registry import register_skill
 from detach.skills.scripting import hinge_pose
+from detach.torch_math import quat_from_yaw, wrap_angle
 
 SIT_POSE = hinge_pose(right_hip_y=-1.57, left_hip_y=-1.57, right_shoulder_y=-1.2, left_shoulder_y=-1.2)
 """The oracle's long sitting: thighs and shins straight forward, arms reaching forward."""
+
+
+NEAR_RANGE = (0.2, 1.5)
+"""A mid-task start stands this far (m) beyond the object's XY half diagonal from its centre."""
+NEAR_YAW_NOISE = math.pi / 4
+"""...facing the sit point give or take this (rad)."""
+FOOTPRINT = 0.2
+"""A start stands on the highest surface within this radius (m) of its pelvis, feet clear."""
+
+
+def surface_under(raster, xy: torch.Tensor) -> torch.Tensor:
+    """Highest static surface [n] (m) within `FOOTPRINT` of points xy [n, 2]."""
+    ang = torch.linspace(0, 2 * math.pi, 9, device=xy.device)[:-1]
+    ring = FOOTPRINT * torch.stack((ang.cos(), ang.sin()), -1)
+    pts = torch.cat((xy[:, None], xy[:, None] + ring[None]), 1)
+    return raster.sample(pts).max(dim=-1).values
 
 
 def sit_approach(ctx: SkillContext) -> torch.Tensor:
@@ -40,12 +64,18 @@ class Sit(Skill):
     motion_labels = ("sit", "walk")
     sources = ("scene", "tarpos")
     needs_object = True
+    mid_task_reads_target = False
     reward_terms = {"approach": RewardTerm(sit_approach, 0.3), "seat": RewardTerm(seat, 0.7)}
 
     def bind(self, plan, services) -> None:
         super().bind(plan, services)
         self.local = object_points(services.scene, "tar_sit_local", self.device)
         self._headings: torch.Tensor | None = None
+        objects = services.scene.objects
+        self.seat_rest = torch.tensor(np.array([o.tar_sit_world for o in objects], dtype=np.float32).reshape(-1, 3),
+                                      device=self.device)
+        """Each object's sit point where it rests (world), indexed by object."""
+        self.rest_yaw = torch.tensor([o.z_rot for o in objects], dtype=torch.float32, device=self.device)
 
     def display_target(self, sub: Subtask, scene) -> np.ndarray | None:
         if sub.fixed_target is None and sub.obj >= 0:
@@ -54,6 +84,23 @@ class Sit(Skill):
 
     def target(self, ctx: SkillContext) -> torch.Tensor:
         return torch.where(ctx.has_fixed[:, None], ctx.fixed_target, object_point_world(ctx, self.local))
+
+    def mid_task_start(self, objects, obj_rest, obj_half, target, gen) -> MidTaskStart:
+        """Standing near the object, on any side, on the highest surface under the feet,
+        facing the sit point within `NEAR_YAW_NOISE`; the object where it rests."""
+        n, dev = len(obj_rest), obj_rest.device
+
+        def uniform(lo: float, hi: float) -> torch.Tensor:
+            return uniform_draw(n, lo, hi, gen, dev)
+
+        side, gap, turn = uniform(-math.pi, math.pi), uniform(*NEAR_RANGE), uniform(-NEAR_YAW_NOISE, NEAR_YAW_NOISE)
+        reach = obj_half[:, :2].norm(dim=-1) + gap
+        root_xy = obj_rest[:, :2] + torch.stack((side.cos(), side.sin()), -1) * reach[:, None]
+        to_seat = self.seat_rest[objects, :2] - root_xy
+        yaw = wrap_angle(torch.atan2(to_seat[:, 1], to_seat[:, 0]) + turn)
+        height = surface_under(self.services.raster, root_xy) + START_HEIGHT
+        return MidTaskStart(root_xy, yaw, height, torch.zeros(n, NUM_DOF, device=dev), obj_rest.clone(),
+                            quat_from_yaw(self.rest_yaw[objects]), held=torch.zeros(n, dtype=torch.bool, device=dev))
 
     # ------------------------------------------------------------------ oracle
     def _sit_heading(self, obj: int) -> float:
