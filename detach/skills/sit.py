@@ -5,11 +5,12 @@ carried into the world by the object's current pose) or a fixed `tarpos_K`. Dist
 from the pelvis to the target. Success (the paper: "the pelvis on the upper surface of the
 target object"): the transition fired.
 
-Mid-task starts (`env.mid_task_init_prob`) stand near the seat on whatever surface is there
-(the floor, or the platform a raised chair stands on), so that a policy sees what the seat
-term pays: it pays exp(-10 d^2), nothing beyond ~1 m, and a puppet that reached LH1's chair
-on its 1 m platform by hovering at its root servo's top, 1 m above the sit point, was paid
-by `approach` alone and never came down.
+Mid-task starts (`env.mid_task_init_prob`): a share `SEATED_SHARE` seated, in the oracle's
+sitting pose at the sit point (TokenHSI starts some Sit episodes from sitting clips), the rest
+standing near the seat on whatever surface is there (the floor, or the platform a raised
+chair stands on). The seat term pays exp(-10 d^2), nothing beyond ~1 m: a puppet that reached
+LH1's chair on its 1 m platform by hovering at its root servo's top, 1 m above the sit point,
+was paid by `approach` alone and never came down, from standing starts near the seat too.
 """
 
 from __future__ import annotations
@@ -36,6 +37,8 @@ NEAR_RANGE = (0.2, 1.5)
 """A mid-task start stands this far (m) beyond the object's XY half diagonal from its centre."""
 NEAR_YAW_NOISE = math.pi / 4
 """...facing the sit point give or take this (rad)."""
+SEATED_SHARE = 0.3
+"""Share of the mid-task starts seated at the sit point, the rest standing near the seat."""
 FOOTPRINT = 0.2
 """A start stands on the highest surface within this radius (m) of its pelvis, feet clear."""
 
@@ -71,6 +74,7 @@ class Sit(Skill):
         super().bind(plan, services)
         self.local = object_points(services.scene, "tar_sit_local", self.device)
         self._headings: torch.Tensor | None = None
+        self._object_headings: torch.Tensor | None = None
         objects = services.scene.objects
         self.seat_rest = torch.tensor(np.array([o.tar_sit_world for o in objects], dtype=np.float32).reshape(-1, 3),
                                       device=self.device)
@@ -86,21 +90,31 @@ class Sit(Skill):
         return torch.where(ctx.has_fixed[:, None], ctx.fixed_target, object_point_world(ctx, self.local))
 
     def mid_task_start(self, objects, obj_rest, obj_half, target, gen) -> MidTaskStart:
-        """Standing near the object, on any side, on the highest surface under the feet,
-        facing the sit point within `NEAR_YAW_NOISE`; the object where it rests."""
+        """Seated at the sit point in the oracle's sitting pose, facing the oracle's sitting
+        direction (`SEATED_SHARE`), or standing near the object, on any side, on the highest
+        surface under the feet, facing the sit point within `NEAR_YAW_NOISE`; the object where
+        it rests."""
         n, dev = len(obj_rest), obj_rest.device
+        if self._object_headings is None:
+            self._object_headings = torch.tensor([self._sit_heading(k) for k in range(len(self.seat_rest))],
+                                                 dtype=torch.float32, device=self.device)
 
         def uniform(lo: float, hi: float) -> torch.Tensor:
             return uniform_draw(n, lo, hi, gen, dev)
 
         side, gap, turn = uniform(-math.pi, math.pi), uniform(*NEAR_RANGE), uniform(-NEAR_YAW_NOISE, NEAR_YAW_NOISE)
+        seated = uniform(0, 1) < SEATED_SHARE
+        seat = self.seat_rest[objects]
         reach = obj_half[:, :2].norm(dim=-1) + gap
-        root_xy = obj_rest[:, :2] + torch.stack((side.cos(), side.sin()), -1) * reach[:, None]
-        to_seat = self.seat_rest[objects, :2] - root_xy
-        yaw = wrap_angle(torch.atan2(to_seat[:, 1], to_seat[:, 0]) + turn)
-        height = surface_under(self.services.raster, root_xy) + START_HEIGHT
-        return MidTaskStart(root_xy, yaw, height, torch.zeros(n, NUM_DOF, device=dev), obj_rest.clone(),
-                            quat_from_yaw(self.rest_yaw[objects]), held=torch.zeros(n, dtype=torch.bool, device=dev))
+        near_xy = obj_rest[:, :2] + torch.stack((side.cos(), side.sin()), -1) * reach[:, None]
+        to_seat = seat[:, :2] - near_xy
+        near_yaw = torch.atan2(to_seat[:, 1], to_seat[:, 0]) + turn
+        root_xy = torch.where(seated[:, None], seat[:, :2], near_xy)
+        yaw = wrap_angle(torch.where(seated, self._object_headings[objects], near_yaw))
+        height = torch.where(seated, seat[:, 2], surface_under(self.services.raster, near_xy) + START_HEIGHT)
+        hinges = torch.where(seated[:, None], SIT_POSE.to(dev), torch.zeros(n, NUM_DOF, device=dev))
+        return MidTaskStart(root_xy, yaw, height, hinges, obj_rest.clone(), quat_from_yaw(self.rest_yaw[objects]),
+                            held=torch.zeros(n, dtype=torch.bool, device=dev))
 
     # ------------------------------------------------------------------ oracle
     def _sit_heading(self, obj: int) -> float:
