@@ -42,6 +42,8 @@ class PlanTracker:
         self.num_subtasks = s
         z = lambda *shape, dtype=torch.long: torch.zeros(*shape, dtype=dtype, device=d)  # noqa: E731
         self.subtask, self.hold = z(n), z(n)
+        self.begin = z(n)
+        """[N] the subtask each env's episode began at (`begin_at`), 0 by default."""
         self.done = z(n, s, dtype=torch.bool)
         self.start_step, self.end_step = z(n, s) - 1, z(n, s) - 1
         self.stats = {k: z(n, s, dtype=dt) for sk in self.skills.values() for k, dt in sk.stats.items()}
@@ -146,7 +148,7 @@ class PlanTracker:
         """New episodes in envs ids (objects drawn with `draw_objects`) start their first
         subtask (steps [N], root_xy [N, 2]: every env's)."""
         # index_fill_ takes the value as a kernel argument; `t[ids] = 0` copies it to the device
-        for t, value in ((self.subtask, 0), (self.hold, 0), (self.done, False), (self.start_step, -1),
+        for t, value in ((self.subtask, 0), (self.begin, 0), (self.hold, 0), (self.done, False), (self.start_step, -1),
                          (self.end_step, -1), *((v, 0) for v in self.stats.values())):
             t.index_fill_(0, ids, value)
         every = torch.ones_like(ids, dtype=torch.bool)
@@ -159,6 +161,7 @@ class PlanTracker:
         root_xy as for `reset`."""
         sub = torch.where(late, sub, self.subtask[ids])
         self.subtask[ids] = sub
+        self.begin[ids] = sub
         before = torch.arange(self.num_subtasks, device=sub.device)[None, :] < sub[:, None]
         self.done[ids] = torch.where(late[:, None], before, self.done[ids])
         mask = rows_at(len(self.subtask), ids, late, False)
@@ -188,13 +191,18 @@ class PlanTracker:
                     ) -> dict[str, torch.Tensor]:
         """Values of the finished episodes ids for the training log, named as IsaacLab's envs
         name theirs for rsl-rl (`Episode_Termination/`, `Episode_Success/`; docs/METRICS.md).
-        Success is logged for the rows of ids where counted [n] is set (default all; the env
-        leaves out episodes that started mid-task) and NaN at the others, which the training
-        log skips (a selection would need a host read). The episode length is rsl-rl's own
-        `Train/mean_episode_length`."""
+        `Episode_Success/lh` counts the rows of ids where counted [n] is set (default all; the
+        env leaves out episodes that started mid-task or at a later subtask); subtask i's
+        success counts the episodes that began at or before it (`begin`), left out at i = 0
+        where counted is unset (a held start's grasp scores from its first step), so a later
+        subtask's curve includes the episodes that began there. Rows not counted are NaN, which
+        the training log skips (a selection would need a host read). The episode length is
+        rsl-rl's own `Train/mean_episode_length`."""
         log = {f"Episode_Termination/{name}": prog[name][ids].float() for name in terminations}
-        keep = (lambda v: v) if counted is None else (lambda v: torch.where(counted, v, torch.nan))
-        log["Episode_Success/lh"] = keep(prog["lh_success"][ids].float())
+        counted = torch.ones_like(ids, dtype=torch.bool) if counted is None else counted
+        log["Episode_Success/lh"] = torch.where(counted, prog["lh_success"][ids].float(), torch.nan)
+        begin = self.begin[ids]
         for i, s in enumerate(self.plan):
-            log[f"Episode_Success/{i}_{s.skill}"] = keep(prog["score"][ids, i])
+            count = (begin <= i) & (counted | (i > 0))
+            log[f"Episode_Success/{i}_{s.skill}"] = torch.where(count, prog["score"][ids, i], torch.nan)
         return log
