@@ -347,6 +347,9 @@ class TrainCfg:
     teacher_only: bool = False
     """With teachers: distil them alone (PPO collects the student's rollouts but does not
     update; the critic and the rewards do not train the policy)."""
+    action_bound_coef: float = 0.0
+    """Weight of a penalty on mean actions beyond +-1.1 (`detach.train.action_bounds`; TokenHSI
+    trains with 10); 0 = off."""
     torch_threads: int = 0
     """torch CPU threads of training, evaluation and play; 0 keeps torch's default (one per core,
     or OMP_NUM_THREADS). Set 1 when two runs share the cores."""
@@ -440,7 +443,7 @@ VALUE_RANGES: dict[str, Range] = {
     "train.clip_param": POSITIVE, "train.entropy_coef": AT_LEAST_0, "train.value_loss_coef": AT_LEAST_0,
     "train.num_learning_epochs": AT_LEAST_1, "train.num_mini_batches": AT_LEAST_1,
     "train.max_grad_norm": POSITIVE, "train.init_action_std": POSITIVE, "train.torch_threads": AT_LEAST_0,
-    "train.teacher_weight": AT_LEAST_0,
+    "train.teacher_weight": AT_LEAST_0, "train.action_bound_coef": AT_LEAST_0,
     "train.stages.pretrain": AT_LEAST_0, "train.stages.fusion": AT_LEAST_0, "train.stages.joint": AT_LEAST_0,
     "train.amp.task_reward_weight": AT_LEAST_0, "train.amp.style_reward_weight": AT_LEAST_0,
     "train.amp.grad_penalty": AT_LEAST_0, "train.amp.logit_reg": AT_LEAST_0, "train.amp.weight_decay": AT_LEAST_0,

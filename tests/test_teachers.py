@@ -98,3 +98,47 @@ def test_bad_teachers_are_one_line_errors(teacher_run: Path, tmp_path: Path, cap
     err = capsys.readouterr().err
     assert expected in err and "train.teacher" in err, err
     assert not out.exists() or not any(out.iterdir()), "nothing half-written"
+
+
+def test_action_bound_loss_is_zero_inside_and_grows_beyond() -> None:
+    from detach.train.action_bounds import SOFT_BOUND, action_bound_loss
+
+    inside = torch.full((4, 3), SOFT_BOUND - 0.01)
+    assert float(action_bound_loss(inside, 10.0)[0]) == 0.0
+    mu = torch.tensor([[SOFT_BOUND + 1.0, 0.0, -SOFT_BOUND - 2.0]], requires_grad=True)
+    loss, logs = action_bound_loss(mu, 10.0)
+    assert float(loss.detach()) == pytest.approx(10.0 * (1.0 + 4.0))
+    assert logs["action_bound/beyond"] == pytest.approx(2 / 3)
+    loss.backward()
+    assert mu.grad[0, 0] > 0 and mu.grad[0, 1] == 0 and mu.grad[0, 2] < 0  # a step pulls both back inside
+
+
+def test_a_policy_pinned_beyond_an_action_bound_is_pulled_back() -> None:
+    """A policy whose mean pelvis-height action sits at 5 (every sample clipped to 1: no signal
+    for PPO): `train.action_bound_coef` adds a loss to the update that brings the mean back
+    within the bound on the rollout's states."""
+    from detach.character.puppet import NUM_ACTIONS
+
+    cfg = complete_run_config(resolve(FOLLOW, "mlp", TINY + ["train.action_bound_coef=10", "train.learning_rate=1e-3"]))
+    env, runner = build_runner(cfg, None, "cpu", progress=False)
+    alg = runner.alg
+    bias = [p for name, p in alg.actor.named_parameters() if name.endswith("bias") and p.shape == (NUM_ACTIONS,)][-1]
+    with torch.no_grad():
+        bias[35] = 5.0
+    obs = env.get_observations()
+    before = float(alg.actor(obs)[:, 35].mean())
+    first = alg.bound_loss_fn(obs)[0]
+    logs = alg._minimise(alg.bound_loss_fn, obs.repeat(16), 20)
+    after = float(alg.actor(obs)[:, 35].mean())
+    assert before > 4.5 and after < 2.0 and float(alg.bound_loss_fn(obs)[0]) < 0.1 * float(first), (before, after)
+    assert set(logs) == {"action_bound/loss", "action_bound/beyond"}
+
+
+def test_the_action_bound_loss_is_logged_only_when_asked(tmp_path: Path) -> None:
+    for coef in (10.0, 0.0):
+        out = tmp_path / f"runs_{coef}"
+        assert cli.main(["train", FOLLOW, "--model", "mlp", "--runs", str(out), *TINY, "train.max_iterations=2",
+                         "--no-eval", f"train.action_bound_coef={coef}"]) == 0
+        (run,) = find_runs(out)
+        logged = read_metrics(run.log_path)[-1]
+        assert ("Loss/action_bound/loss" in logged) == (coef > 0), sorted(logged)

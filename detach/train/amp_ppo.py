@@ -24,6 +24,8 @@ What it adds to PPO:
   is minimised with PPO's optimiser for as many epochs and mini-batches as PPO's own update
   (not in DETACH's "pretrain" stage); with `teacher_only` PPO does not update at all (policy
   distillation on the student's own rollouts, DAgger-style).
+- Action bounds (`train.action_bound_coef`, `detach.train.action_bounds`): `bound_loss_fn`
+  is minimised with the teachers' loss, in the same steps, or alone in as many.
 
 Multi-GPU (rsl-rl's distributed path, `torchrun`): besides PPO's actor and critic, the
 discriminators start from rank 0's weights and normaliser statistics (`broadcast_parameters`),
@@ -54,6 +56,18 @@ TeacherLossFn = Callable[[TensorDict], tuple[torch.Tensor, dict[str, float]]]
 ReferenceSampler = Callable[[int], tuple[torch.Tensor, torch.Tensor]]
 
 
+def summed(fns: list[TeacherLossFn]) -> TeacherLossFn:
+    """One loss function: the sum of fns' losses, their logs merged."""
+    def loss(batch: TensorDict) -> tuple[torch.Tensor, dict[str, float]]:
+        total, logs = fns[0](batch)
+        for fn in fns[1:]:
+            more, more_logs = fn(batch)
+            total = total + more
+            logs = {**logs, **more_logs}
+        return total, logs
+    return loss
+
+
 class AmpPPO(PPO):
     def __init__(self, actor, critic, storage, amp: AmpCfg | None = None, task_specific: bool = True,
                  amp_parts: dict[str, list[int]] | None = None, per_objective_advantage_norm: bool = True,
@@ -81,6 +95,7 @@ class AmpPPO(PPO):
         self.aux_loss_fn: AuxLossFn | None = None
         self.teacher_loss_fn: TeacherLossFn | None = None
         self.teacher_only = False
+        self.bound_loss_fn: TeacherLossFn | None = None
         """Distillation: the teachers' loss alone trains the policy (PPO collects, no PPO update)."""
         self.stage = "ppo"
         heads = tuple(getattr(critic, "value_objectives", ()) or ())
@@ -200,8 +215,9 @@ class AmpPPO(PPO):
             losses.update(self._update_discriminators())
         if self.aux_loss_fn is not None:
             losses.update(self._update_aux(obs))
-        if self.teacher_loss_fn is not None and self.stage != "pretrain":
-            losses.update(self._minimise(self.teacher_loss_fn, obs, self.num_learning_epochs))
+        policy_losses = [f for f in (self.teacher_loss_fn, self.bound_loss_fn) if f is not None]
+        if policy_losses and self.stage != "pretrain":
+            losses.update(self._minimise(summed(policy_losses), obs, self.num_learning_epochs))
         count = max(self._reward_sums["count"], 1)
         losses["reward_task"] = self._reward_sums["task"] / count
         if self.amp_enabled:

@@ -29,6 +29,7 @@ from detach.train.distributed import local_device, rank
 from detach.train.motion_bridge import amp_part_indices, amp_reference_sampler, reset_reference_sampler
 from detach.train.runner import DetachRunner, MetricsSink
 from detach.train.schedule import stage_lengths
+from detach.train.action_bounds import action_bound_loss
 from detach.train.teachers import load_teachers
 from detach.train.trained_actor import default_action_std
 from scene_builder.assets import ensure_assets
@@ -149,6 +150,8 @@ def build_runner(cfg: RunConfig, checkpoint_dir: Path | None, device: str, log: 
         teachers = load_teachers(cfg, env, device)
         alg.teacher_loss_fn = lambda obs: teachers.loss(alg.actor, obs)
         alg.teacher_only = cfg.train.teacher_only
+    if cfg.train.action_bound_coef > 0:
+        alg.bound_loss_fn = lambda obs: action_bound_loss(alg.actor(obs), cfg.train.action_bound_coef)
     return env, runner
 
 

@@ -4,10 +4,11 @@ Kickstarting (Schmitt et al. 2018, "Kickstarting Deep Reinforcement Learning"): 
 trains the student on the task reward, an auxiliary loss pulls the student's mean action
 toward a frozen teacher's on the steps of the teacher's skill,
 
-    L = train.teacher_weight * (1/B) * sum_b sum_k [skill(b) = k] * mean_a (mu(o_b) - mu_k(o_b))^2,
+    L = train.teacher_weight * (1/B) * sum_b sum_k [skill(b) = k] * mean_a (mu(o_b) - clip(mu_k(o_b)))^2,
 
 over the same rollout PPO learns from (the student's own states, so the teacher corrects
-where the student goes, as DAgger does). Why here: one network taught a new skill by PPO
+where the student goes, as DAgger does); the teacher's mean is clipped to [-1, 1] as the env
+clips actions (beyond, every value acts the same). Why here: one network taught a new skill by PPO
 alone loses the skills it had (results/laptop/README.md: Climb learned at its own step took
 Follow from 1.00 to 0.00), while a policy trained on one skill in place does that skill; a
 teacher per skill keeps each skill's behaviour as the target while the rewards of every
@@ -71,8 +72,8 @@ class Teachers:
         total = torch.zeros((), device=mu.device)
         logs: dict[str, float] = {}
         for teacher, skills, columns in zip(self.actors, self.skills, self.columns):
-            with torch.no_grad():
-                target = teacher(obs)
+            with torch.no_grad():  # the env clips actions: a teacher's mean beyond acts as at the clip
+                target = teacher(obs).clamp(-1.0, 1.0)
             sq = (mu - target).square().mean(-1)
             for skill, column in zip(skills, columns):
                 mask = onehot[:, column]
