@@ -95,8 +95,9 @@ class AmpPPO(PPO):
         self.aux_loss_fn: AuxLossFn | None = None
         self.teacher_loss_fn: TeacherLossFn | None = None
         self.teacher_only = False
-        self.bound_loss_fn: TeacherLossFn | None = None
         """Distillation: the teachers' loss alone trains the policy (PPO collects, no PPO update)."""
+        self.bound_loss_fn: TeacherLossFn | None = None
+        """The action-bound penalty (`train.action_bound_coef`), minimised with the teachers' loss."""
         self.stage = "ppo"
         heads = tuple(getattr(critic, "value_objectives", ()) or ())
         self.num_objectives = len(heads) if heads else int(getattr(critic, "num_objectives", 1))

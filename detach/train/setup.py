@@ -24,12 +24,12 @@ from detach.models.losses import combine_aux_losses
 from detach.motion import default_motion_lib
 from detach.run_contract import CONFIG_FILE
 from detach.skills import canonical_name
+from detach.train.action_bounds import action_bound_loss
 from detach.train.checkpoints import find_init_checkpoint
 from detach.train.distributed import local_device, rank
 from detach.train.motion_bridge import amp_part_indices, amp_reference_sampler, reset_reference_sampler
 from detach.train.runner import DetachRunner, MetricsSink
 from detach.train.schedule import stage_lengths
-from detach.train.action_bounds import action_bound_loss
 from detach.train.teachers import load_teachers
 from detach.train.trained_actor import default_action_std
 from scene_builder.assets import ensure_assets
