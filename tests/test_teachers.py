@@ -64,7 +64,7 @@ def test_a_skill_without_steps_in_the_batch_adds_nothing(teacher_run: Path) -> N
     """A Carry teacher in a Follow run: no step is Carry's, so the loss is 0 and moves nothing."""
     cfg = complete_run_config(resolve(FOLLOW, "mlp", TINY + [f"+train.teachers.carry={teacher_run}"]))
     env, runner = build_runner(cfg, None, "cpu", progress=False)
-    loss, logs = runner.alg.teacher_loss_fn(env.get_observations())
+    loss, logs = runner.alg.policy_loss_fn(env.get_observations())
     assert float(loss.detach()) == 0.0 and logs["teacher/carry/share"] == 0.0
     loss.backward()
     assert all(p.grad is None or not p.grad.any() for p in runner.alg.actor.parameters())
@@ -79,7 +79,7 @@ def test_a_policy_teaching_two_skills_is_loaded_once(teacher_run: Path) -> None:
     env, runner = build_runner(cfg, None, "cpu", progress=False)
     teachers = load_teachers(cfg, env, "cpu")
     assert len(teachers.actors) == 1 and teachers.skills == [["follow", "carry"]]
-    _loss, logs = runner.alg.teacher_loss_fn(env.get_observations())
+    _loss, logs = runner.alg.policy_loss_fn(env.get_observations())
     assert logs["teacher/follow/share"] == 1.0 and logs["teacher/carry/share"] == 0.0
 
 
@@ -128,11 +128,11 @@ def test_a_policy_pinned_beyond_an_action_bound_is_pulled_back() -> None:
     obs = env.get_observations()
     with torch.no_grad():
         before = float(alg.actor(obs)[:, 35].mean())
-        first = alg.bound_loss_fn(obs)[0]
-    logs = alg._minimise(alg.bound_loss_fn, obs.repeat(16), 20)
+        first = alg.policy_loss_fn(obs)[0]
+    logs = alg._minimise(alg.policy_loss_fn, obs.repeat(16), 20)
     with torch.no_grad():
         after = float(alg.actor(obs)[:, 35].mean())
-        last = alg.bound_loss_fn(obs)[0]
+        last = alg.policy_loss_fn(obs)[0]
     assert before > 4.5 and after < 2.0 and float(last) < 0.1 * float(first), (before, after)
     assert set(logs) == {"action_bound/loss", "action_bound/beyond"}
 

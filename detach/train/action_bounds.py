@@ -5,7 +5,7 @@ Why: the env clips every action to [-1, 1]. A Gaussian policy whose mean drifts 
 that (a puppet's pelvis-height action at 5.4, its servo pinned at the top) samples only clipped
 actions, all of which do the same thing, so PPO's advantages carry no signal to bring it back:
 the puppet hovered a metre above LH1's raised seat for hundreds of iterations. rsl-rl's PPO has
-no such term, so it runs beside PPO's update (`AmpPPO.bound_loss_fn`).
+no such term, so it runs beside PPO's update (`AmpPPO.policy_loss_fn`).
 """
 
 from __future__ import annotations

@@ -20,12 +20,12 @@ What it adds to PPO:
   update; only `aux_loss_fn(obs, stage)` is minimised (encoder pre-training). In other stages
   PPO updates and then `aux_loss_fn` runs over the same rollout (alternating optimisation
   with the PPO optimiser, whose parameter list skips frozen parameters' missing gradients).
-- Teachers (`train.teachers`, `detach.train.teachers`): after PPO's update, `teacher_loss_fn`
-  is minimised with PPO's optimiser for as many epochs and mini-batches as PPO's own update
-  (not in DETACH's "pretrain" stage); with `teacher_only` PPO does not update at all (policy
-  distillation on the student's own rollouts, DAgger-style).
-- Action bounds (`train.action_bound_coef`, `detach.train.action_bounds`): `bound_loss_fn`
-  is minimised with the teachers' loss, in the same steps, or alone in as many.
+- Losses on the student's mean action (`policy_loss_fn`: the teachers' loss of
+  `train.teachers`, `detach.train.teachers`, and the penalty of `train.action_bound_coef`,
+  `detach.train.action_bounds`): after PPO's update they are minimised with PPO's optimiser for
+  as many epochs and mini-batches as PPO's own update (not in DETACH's "pretrain" stage); with
+  `teacher_only` PPO does not update at all (policy distillation on the student's own
+  rollouts, DAgger-style).
 
 Multi-GPU (rsl-rl's distributed path, `torchrun`): besides PPO's actor and critic, the
 discriminators start from rank 0's weights and normaliser statistics (`broadcast_parameters`),
@@ -52,20 +52,8 @@ from detach.train.discriminator import AmpDiscriminator, ReplayBuffer
 REPLAY_KEY = "amp_replay_state"
 """Key of the AMP replay buffer's state in `AmpPPO.save()`'s dict."""
 AuxLossFn = Callable[[TensorDict, str], tuple[torch.Tensor, dict[str, float]]]
-TeacherLossFn = Callable[[TensorDict], tuple[torch.Tensor, dict[str, float]]]
+PolicyLossFn = Callable[[TensorDict], tuple[torch.Tensor, dict[str, float]]]
 ReferenceSampler = Callable[[int], tuple[torch.Tensor, torch.Tensor]]
-
-
-def summed(fns: list[TeacherLossFn]) -> TeacherLossFn:
-    """One loss function: the sum of fns' losses, their logs merged."""
-    def loss(batch: TensorDict) -> tuple[torch.Tensor, dict[str, float]]:
-        total, logs = fns[0](batch)
-        for fn in fns[1:]:
-            more, more_logs = fn(batch)
-            total = total + more
-            logs = {**logs, **more_logs}
-        return total, logs
-    return loss
 
 
 class AmpPPO(PPO):
@@ -93,11 +81,10 @@ class AmpPPO(PPO):
         self.per_objective_norm = per_objective_advantage_norm
         self.reference_sampler: ReferenceSampler | None = None
         self.aux_loss_fn: AuxLossFn | None = None
-        self.teacher_loss_fn: TeacherLossFn | None = None
+        self.policy_loss_fn: PolicyLossFn | None = None
+        """Losses on the student's mean action (teachers, action bound), minimised after PPO's update."""
         self.teacher_only = False
         """Distillation: the teachers' loss alone trains the policy (PPO collects, no PPO update)."""
-        self.bound_loss_fn: TeacherLossFn | None = None
-        """The action-bound penalty (`train.action_bound_coef`), minimised with the teachers' loss."""
         self.stage = "ppo"
         heads = tuple(getattr(critic, "value_objectives", ()) or ())
         self.num_objectives = len(heads) if heads else int(getattr(critic, "num_objectives", 1))
@@ -216,9 +203,8 @@ class AmpPPO(PPO):
             losses.update(self._update_discriminators())
         if self.aux_loss_fn is not None:
             losses.update(self._update_aux(obs))
-        policy_losses = [f for f in (self.teacher_loss_fn, self.bound_loss_fn) if f is not None]
-        if policy_losses and self.stage != "pretrain":
-            losses.update(self._minimise(summed(policy_losses), obs, self.num_learning_epochs))
+        if self.policy_loss_fn is not None and self.stage != "pretrain":
+            losses.update(self._minimise(self.policy_loss_fn, obs, self.num_learning_epochs))
         count = max(self._reward_sums["count"], 1)
         losses["reward_task"] = self._reward_sums["task"] / count
         if self.amp_enabled:
@@ -273,7 +259,7 @@ class AmpPPO(PPO):
     def _update_aux(self, obs: TensorDict) -> dict[str, float]:
         return self._minimise(lambda batch: self.aux_loss_fn(batch, self.stage), obs, 1)
 
-    def _minimise(self, loss_fn: TeacherLossFn, obs: TensorDict, epochs: int) -> dict[str, float]:
+    def _minimise(self, loss_fn: PolicyLossFn, obs: TensorDict, epochs: int) -> dict[str, float]:
         """`epochs` passes of PPO's mini-batches over the rollout's observations, one step of
         PPO's optimiser on `loss_fn` each; returns the mean of each logged value. The teachers'
         loss (`train.teachers`) takes as many steps as PPO's update, so that neither

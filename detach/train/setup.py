@@ -146,12 +146,19 @@ def build_runner(cfg: RunConfig, checkpoint_dir: Path | None, device: str, log: 
             return total, parts
 
         alg.aux_loss_fn = aux_loss
-    if cfg.train.teachers:
-        teachers = load_teachers(cfg, env, device)
-        alg.teacher_loss_fn = lambda obs: teachers.loss(alg.actor, obs)
+    teachers = load_teachers(cfg, env, device)
+    bound_coef = cfg.train.action_bound_coef
+    if teachers is not None or bound_coef > 0:
+        def policy_loss(obs):
+            """The teachers' loss and the action-bound penalty from one pass of the actor."""
+            mu = alg.actor(obs)
+            terms = ([teachers.loss(mu, obs)] if teachers is not None else []) + \
+                ([action_bound_loss(mu, bound_coef)] if bound_coef > 0 else [])
+            total = sum((loss for loss, _ in terms), torch.zeros((), device=mu.device))
+            return total, {key: value for _, logs in terms for key, value in logs.items()}
+
+        alg.policy_loss_fn = policy_loss
         alg.teacher_only = cfg.train.teacher_only
-    if cfg.train.action_bound_coef > 0:
-        alg.bound_loss_fn = lambda obs: action_bound_loss(alg.actor(obs), cfg.train.action_bound_coef)
     return env, runner
 
 

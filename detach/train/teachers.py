@@ -64,10 +64,9 @@ class Teachers:
     columns: list[list[int]]
     weight: float
 
-    def loss(self, student: torch.nn.Module, obs: TensorDict) -> tuple[torch.Tensor, dict[str, float]]:
+    def loss(self, mu: torch.Tensor, obs: TensorDict) -> tuple[torch.Tensor, dict[str, float]]:
         """(weighted kickstarting loss, per-skill mean squared action difference and share of
-        the batch) over a batch of rollout observations."""
-        mu = student(obs)
+        the batch) of the student's mean actions mu [B, A] over a batch of rollout observations."""
         onehot = obs["task"]
         total = torch.zeros((), device=mu.device)
         logs: dict[str, float] = {}
