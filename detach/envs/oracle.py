@@ -30,17 +30,12 @@ class Oracle:
         self.env = env
         self.dev = env.device
 
-    def _ground(self, xy: torch.Tensor, radius: float = 0.2) -> torch.Tensor:
-        """Highest static surface (m) within `radius` of points xy [n, 2]."""
-        r = torch.tensor([[0, 0], [radius, 0], [-radius, 0], [0, radius], [0, -radius]], device=self.dev)
-        return self.env.services.raster.sample(xy[:, None] + r).max(dim=-1).values
-
     def __call__(self, _obs=None) -> torch.Tensor:
         env = self.env
         ctx = env.context()
         n, p = env.num_envs, ctx.state.root_pos
         yaw = yaw_of(ctx.state.root_quat)
-        ground = self._ground(p[:, :2])
+        ground = env.services.raster.highest_within(p[:, :2], 0.2, directions=4)  # static surface under the feet
         cmd = OracleCommand(velocity=torch.zeros(n, 2, device=self.dev), yaw_target=yaw.clone(),
                             height=ground + START_HEIGHT, hinges=torch.zeros(n, NUM_DOF, device=self.dev),
                             grasp=torch.full((n,), -1.0, device=self.dev), yaw=yaw, ground=ground)

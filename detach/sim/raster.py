@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import torch
 import torch.nn.functional as F
 
@@ -28,3 +30,10 @@ class Raster:
     def sample(self, xy: torch.Tensor) -> torch.Tensor:
         """Heights [...] at world points xy [..., 2]."""
         return self.sample_uv(xy.flip(-1) * self.scale - self.shift)
+
+    def highest_within(self, xy: torch.Tensor, radius: float, directions: int) -> torch.Tensor:
+        """Highest surface [n] (m) at points xy [n, 2] and at `directions` points evenly around
+        each, `radius` m away (the first along +x): where feet of that reach stand."""
+        ang = torch.linspace(0, 2 * math.pi, directions + 1, device=xy.device)[:-1]
+        ring = radius * torch.stack((ang.cos(), ang.sin()), -1)
+        return self.sample(torch.cat((xy[:, None], xy[:, None] + ring[None]), 1)).max(dim=-1).values

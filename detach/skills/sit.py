@@ -43,14 +43,6 @@ FOOTPRINT = 0.2
 """A start stands on the highest surface within this radius (m) of its pelvis, feet clear."""
 
 
-def surface_under(raster, xy: torch.Tensor) -> torch.Tensor:
-    """Highest static surface [n] (m) within `FOOTPRINT` of points xy [n, 2]."""
-    ang = torch.linspace(0, 2 * math.pi, 9, device=xy.device)[:-1]
-    ring = FOOTPRINT * torch.stack((ang.cos(), ang.sin()), -1)
-    pts = torch.cat((xy[:, None], xy[:, None] + ring[None]), 1)
-    return raster.sample(pts).max(dim=-1).values
-
-
 def sit_approach(ctx: SkillContext) -> torch.Tensor:
     return approach(ctx, ctx.target)
 
@@ -73,8 +65,9 @@ class Sit(Skill):
     def bind(self, plan, services) -> None:
         super().bind(plan, services)
         self.local = object_points(services.scene, "tar_sit_local", self.device)
-        self._headings: torch.Tensor | None = None
         self._object_headings: torch.Tensor | None = None
+        self._plan_obj = torch.tensor([max(sub.obj, 0) for sub in self.plan], device=self.device)
+        """Each subtask's object (0 where it has none), for the oracle's sitting direction."""
         objects = services.scene.objects
         self.seat_rest = torch.tensor(np.array([o.tar_sit_world for o in objects], dtype=np.float32).reshape(-1, 3),
                                       device=self.device)
@@ -95,9 +88,6 @@ class Sit(Skill):
         surface under the feet, facing the sit point within `NEAR_YAW_NOISE`; the object where
         it rests."""
         n, dev = len(obj_rest), obj_rest.device
-        if self._object_headings is None:
-            self._object_headings = torch.tensor([self._sit_heading(k) for k in range(len(self.seat_rest))],
-                                                 dtype=torch.float32, device=self.device)
 
         def uniform(lo: float, hi: float) -> torch.Tensor:
             return uniform_draw(n, lo, hi, gen, dev)
@@ -110,13 +100,22 @@ class Sit(Skill):
         to_seat = seat[:, :2] - near_xy
         near_yaw = torch.atan2(to_seat[:, 1], to_seat[:, 0]) + turn
         root_xy = torch.where(seated[:, None], seat[:, :2], near_xy)
-        yaw = wrap_angle(torch.where(seated, self._object_headings[objects], near_yaw))
-        height = torch.where(seated, seat[:, 2], surface_under(self.services.raster, near_xy) + START_HEIGHT)
+        yaw = wrap_angle(torch.where(seated, self.object_headings()[objects], near_yaw))
+        ground = self.services.raster.highest_within(near_xy, FOOTPRINT, directions=8)
+        height = torch.where(seated, seat[:, 2], ground + START_HEIGHT)
         hinges = torch.where(seated[:, None], SIT_POSE.to(dev), torch.zeros(n, NUM_DOF, device=dev))
         return MidTaskStart(root_xy, yaw, height, hinges, obj_rest.clone(), quat_from_yaw(self.rest_yaw[objects]),
                             held=torch.zeros(n, dtype=torch.bool, device=dev))
 
     # ------------------------------------------------------------------ oracle
+    def object_headings(self) -> torch.Tensor:
+        """[K] the yaw (rad) the oracle sits facing on each scene object (`_sit_heading`),
+        computed on first use."""
+        if self._object_headings is None:
+            self._object_headings = torch.tensor([self._sit_heading(k) for k in range(len(self.seat_rest))],
+                                                 dtype=torch.float32, device=self.device)
+        return self._object_headings
+
     def _sit_heading(self, obj: int) -> float:
         """Yaw (rad) to sit on object obj facing a direction whose leg line is free."""
         raster, dev = self.services.raster, self.device
@@ -148,9 +147,6 @@ class Sit(Skill):
         """Take a long-sitting pose facing the first of the object's facing direction and its
         90/180 deg turns whose leg line is free, rise above everything around the seat, move
         over the sit point and lower onto the seat."""
-        if self._headings is None:
-            self._headings = torch.tensor([self._sit_heading(s.obj) if s.skill == self.name and s.obj >= 0
-                                           else 0.0 for s in self.plan], device=self.device)
         p, target = ctx.state.root_pos, ctx.target
         pxy = p[:, :2]
         dxy = (target[:, :2] - pxy).norm(dim=-1)
@@ -160,7 +156,7 @@ class Sit(Skill):
         vs = (2.5 * (target[:, :2] - pxy)).clamp(-1.2, 1.2)
         vs = torch.where((far | up | (dxy < 0.04))[:, None], vs, torch.zeros_like(vs))
         cmd.velocity = torch.where(active[:, None], vs, cmd.velocity)
-        heading = self._headings[ctx.subtask]
+        heading = self.object_headings()[self._plan_obj[ctx.subtask]]
         cmd.yaw_target = torch.where(active & far, torch.atan2(vs[:, 1], vs[:, 0]),
                                      torch.where(active, heading, cmd.yaw_target))
         zs = torch.where(dxy < 0.04, target[:, 2] - 0.1, torch.maximum(clear, cmd.height))
