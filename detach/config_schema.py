@@ -174,6 +174,12 @@ class RewardsCfg:
     ten steps. Without a bonus, a policy can earn more by lingering just outside a subtask's
     success distance than by moving on. Off by default: 20 lowered LH1's Follow success
     (docs/PROTOCOL.md)."""
+    done_subtask_reward: float = 0.0
+    """Reward paid at every step for each subtask of a paid skill the episode has completed
+    (subtasks a late start skipped count as completed). At >= 1 (the most one subtask's terms
+    pay per step) moving on never lowers the per-step reward, so lingering outside a
+    subtask's success distance stops paying; unlike `subtask_bonus` it is paid for as long as
+    the episode lasts, not once. Off by default (docs/PROTOCOL.md)."""
 
 
 @dataclass(frozen=True)
@@ -434,7 +440,7 @@ VALUE_RANGES: dict[str, Range] = {
     "env.trajectory.num_verts": Range(2), "env.trajectory.speed_min": AT_LEAST_0,
     "env.trajectory.speed_max": AT_LEAST_0, "env.trajectory.sharp_turn_prob": FRACTION,
     "env.follow_on_path_frac": FRACTION,
-    "rewards.subtask_bonus": AT_LEAST_0,
+    "rewards.subtask_bonus": AT_LEAST_0, "rewards.done_subtask_reward": AT_LEAST_0,
     "eval.trials": AT_LEAST_1, "eval.num_envs": ENV_COUNT, "eval.max_transition_steps": AT_LEAST_1,
     "eval.confidence": Range(0, 1, open_low=True, open_high=True),
     "train.max_iterations": AT_LEAST_1, "train.num_steps_per_env": AT_LEAST_1, "train.save_interval": AT_LEAST_1,

@@ -13,6 +13,8 @@ step) outweighed everything holding it earned, so policies learned to drop it.
 (`bonus/subtask_done`): finishing a subtask ends its high end-of-subtask reward and starts
 the next skill's low early reward, which can pay a policy to linger (off by default:
 a bonus of 20 lowered LH1's Follow success, docs/PROTOCOL.md).
+`rewards.done_subtask_reward` is paid at every step for each completed subtask of a paid skill
+(`bonus/subtasks_done`), so that moving on never lowers the per-step reward.
 `RewardManager.table()` lists the active terms with their weights at start-up.
 `rewards.paid_skills` limits the paid terms to some skills (the zero-shot reading of the
 paper's protocol: climb and sit never rewarded).
@@ -48,7 +50,8 @@ def canonical_term(name: str) -> str:
 class RewardManager:
     """Weighted sum of the current skill's terms plus the penalties; per-term logging."""
 
-    def __init__(self, cfg: RewardsCfg) -> None:
+    def __init__(self, cfg: RewardsCfg, plan_skills: list[int], device: torch.device | str = "cpu") -> None:
+        """plan_skills: the registry index of each subtask's skill, in plan order."""
         terms = registered_terms()
         weights = {canonical_term(k): float(v) for k, v in cfg.terms.items()}
         unknown = sorted(set(weights) - set(terms))
@@ -62,6 +65,12 @@ class RewardManager:
         self.active = {n: w for n, w in self.weights.items() if w != 0.0 and n.split("/")[0] in paid}
         self.skill_of = {n: skill_index(n.split("/")[0]) for n in self.active}
         self.bonus_skills = [skill_index(s) for s in paid] if cfg.subtask_bonus > 0 else []
+        paid_index = {skill_index(s) for s in paid}
+        before = [0]
+        for k in plan_skills[:-1]:
+            before.append(before[-1] + (k in paid_index))
+        self.paid_before = torch.tensor(before, dtype=torch.float32, device=device) * cfg.done_subtask_reward
+        """[num_subtasks] the per-step pay of an episode on subtask k: its earlier paid subtasks."""
 
     def table(self) -> str:
         rows = [(n, f"{w:g}") for n, w in self.active.items()]
@@ -70,6 +79,8 @@ class RewardManager:
                   f"-{self.cfg.dyn_obj_speed_penalty_coeff:g} x (v - {self.cfg.dyn_obj_speed_threshold:g})+")]
         if self.bonus_skills:
             rows.append(("bonus/subtask_done", f"{self.cfg.subtask_bonus:g} once"))
+        if self.cfg.done_subtask_reward > 0:
+            rows.append(("bonus/subtasks_done", f"{self.cfg.done_subtask_reward:g} x done per step"))
         width = max(len(r[0]) for r in rows)
         lines = ["Active reward terms", f"  {'term':<{width}}  weight", f"  {'-' * width}  ------"]
         lines += [f"  {n:<{width}}  {w}" for n, w in rows]
@@ -104,3 +115,10 @@ class RewardManager:
         for i in self.bonus_skills:
             paid |= skill == i
         return (completed & paid).float() * self.cfg.subtask_bonus
+
+    def done_pay(self, subtask: torch.Tensor) -> torch.Tensor | None:
+        """[N] `done_subtask_reward` x the paid subtasks completed before each env's current
+        subtask [N]; None when the term is off."""
+        if self.cfg.done_subtask_reward <= 0:
+            return None
+        return self.paid_before[subtask]
