@@ -6,10 +6,9 @@ from the pelvis to the target. Success (the paper: "the pelvis on the upper surf
 target object"): the transition fired.
 
 Mid-task starts (`env.mid_task_init_prob`): a share `SEATED_SHARE` seated, in the oracle's
-sitting pose at the sit point (TokenHSI starts some Sit episodes from sitting clips), a share
-`POISED_SHARE` in that pose above the seat, about to lower onto it (the oracle's last phase),
-the rest standing near the seat on whatever surface is there (the floor, or the platform a
-raised chair stands on). The seat term pays exp(-10 d^2), nothing beyond ~1 m: a puppet that reached
+sitting pose at the sit point (TokenHSI starts some Sit episodes from sitting clips), the rest
+standing near the seat on whatever surface is there (the floor, or the platform a raised
+chair stands on). The seat term pays exp(-10 d^2), nothing beyond ~1 m: a puppet that reached
 LH1's chair on its 1 m platform by hovering at its root servo's top, 1 m above the sit point,
 was paid by `approach` alone and never came down, from standing starts near the seat too.
 """
@@ -38,17 +37,8 @@ NEAR_RANGE = (0.2, 1.5)
 """A mid-task start stands this far (m) beyond the object's XY half diagonal from its centre."""
 NEAR_YAW_NOISE = math.pi / 4
 """...facing the sit point give or take this (rad)."""
-SEATED_SHARE = 0.25
-"""Share of the mid-task starts seated at the sit point."""
-POISED_SHARE = 0.25
-"""Share of the mid-task starts poised above the seat in the sitting pose, the rest standing
-near it. A policy that learned to hold the seat from seated starts and to walk up to the chair
-from standing ones still stood beside LH1's raised chair, 0.44 m from the sit point: getting
-onto a seat takes turning, folding the legs and lowering at once, which neither start shows."""
-POISED_OFFSET = 0.25
-"""A poised start's pelvis is within this XY distance (m) of the sit point..."""
-POISED_RISE = (0.2, 0.6)
-"""...and this far (m) above it."""
+SEATED_SHARE = 0.3
+"""Share of the mid-task starts seated at the sit point, the rest standing near the seat."""
 FOOTPRINT = 0.2
 """A start stands on the highest surface within this radius (m) of its pelvis, feet clear."""
 
@@ -94,31 +84,26 @@ class Sit(Skill):
 
     def mid_task_start(self, objects, obj_rest, obj_half, target, gen) -> MidTaskStart:
         """Seated at the sit point in the oracle's sitting pose, facing the oracle's sitting
-        direction (`SEATED_SHARE`); poised above the seat in that pose and direction
-        (`POISED_SHARE`); or standing near the object, on any side, on the highest surface
-        under the feet, facing the sit point within `NEAR_YAW_NOISE`. The object where it rests."""
+        direction (`SEATED_SHARE`), or standing near the object, on any side, on the highest
+        surface under the feet, facing the sit point within `NEAR_YAW_NOISE`; the object where
+        it rests."""
         n, dev = len(obj_rest), obj_rest.device
 
         def uniform(lo: float, hi: float) -> torch.Tensor:
             return uniform_draw(n, lo, hi, gen, dev)
 
         side, gap, turn = uniform(-math.pi, math.pi), uniform(*NEAR_RANGE), uniform(-NEAR_YAW_NOISE, NEAR_YAW_NOISE)
-        kind = uniform(0, 1)
-        seated, poised = kind < SEATED_SHARE, (kind >= SEATED_SHARE) & (kind < SEATED_SHARE + POISED_SHARE)
-        in_pose = seated | poised
+        seated = uniform(0, 1) < SEATED_SHARE
         seat = self.seat_rest[objects]
         reach = obj_half[:, :2].norm(dim=-1) + gap
         near_xy = obj_rest[:, :2] + torch.stack((side.cos(), side.sin()), -1) * reach[:, None]
         to_seat = seat[:, :2] - near_xy
         near_yaw = torch.atan2(to_seat[:, 1], to_seat[:, 0]) + turn
-        offset = POISED_OFFSET * uniform(0, 1).sqrt()  # uniform over the disc
-        poised_xy = seat[:, :2] + torch.stack((side.cos(), side.sin()), -1) * offset[:, None]
-        root_xy = torch.where(seated[:, None], seat[:, :2], torch.where(poised[:, None], poised_xy, near_xy))
-        yaw = wrap_angle(torch.where(in_pose, self.object_headings()[objects], near_yaw))
+        root_xy = torch.where(seated[:, None], seat[:, :2], near_xy)
+        yaw = wrap_angle(torch.where(seated, self.object_headings()[objects], near_yaw))
         ground = self.services.raster.highest_within(near_xy, FOOTPRINT, directions=8)
-        height = torch.where(seated, seat[:, 2], torch.where(poised, seat[:, 2] + uniform(*POISED_RISE),
-                                                             ground + START_HEIGHT))
-        hinges = torch.where(in_pose[:, None], SIT_POSE.to(dev), torch.zeros(n, NUM_DOF, device=dev))
+        height = torch.where(seated, seat[:, 2], ground + START_HEIGHT)
+        hinges = torch.where(seated[:, None], SIT_POSE.to(dev), torch.zeros(n, NUM_DOF, device=dev))
         return MidTaskStart(root_xy, yaw, height, hinges, obj_rest.clone(), quat_from_yaw(self.rest_yaw[objects]),
                             held=torch.zeros(n, dtype=torch.bool, device=dev))
 
