@@ -7,7 +7,7 @@ Success (the paper): the end was reached (the transition fired) and the pelvis s
 `success_threshold` of the path (XY) for at least `env.follow_on_path_frac` of the subtask's
 steps. Termination: the pelvis more than `env.traj_fail_distance` from the reference point.
 Rewards: position and precision kernels on the error to the moving reference point and a
-velocity-tracking term.
+velocity-tracking term; an opt-in kernel on the distance to the path (`on_path`, weight 0).
 """
 
 from __future__ import annotations
@@ -44,6 +44,15 @@ def precision(ctx: SkillContext) -> torch.Tensor:
     return torch.exp(-20.0 * d2)
 
 
+def on_path(ctx: SkillContext) -> torch.Tensor:
+    """exp(-20 d^2) of the pelvis's XY distance to the path itself (0.17 at the 0.3 m success
+    threshold): the success rule measures the path, the other terms the moving reference
+    point, which a policy may trail or lead while on the path, or match while cutting a corner
+    (LH1's doorway). Weight 0 unless `+rewards.terms.follow/on_path=W` sets one."""
+    d = distance_to_polyline(ctx.state.root_pos[:, :2], ctx.services.trajectory.verts)
+    return torch.exp(-20.0 * d * d)
+
+
 def velocity(ctx: SkillContext) -> torch.Tensor:
     """Velocity tracking: the asked velocity is the reference's own plus `TRACK_GAIN` times the
     error toward it (capped at `TRACK_MAX_SPEED`); dense at any distance, and it asks the
@@ -68,7 +77,7 @@ class Follow(Skill):
     stats = {"on_path": torch.long, "path_steps": torch.long}
     termination_names = ("traj_failed",)
     reward_terms = {"position": RewardTerm(position, 0.4), "precision": RewardTerm(precision, 0.3),
-                    "velocity": RewardTerm(velocity, 0.3)}
+                    "velocity": RewardTerm(velocity, 0.3), "on_path": RewardTerm(on_path, 0.0)}
 
     def compile_entry(self, index, source, ref, obj, task) -> Subtask:
         if source != "traj":
