@@ -178,8 +178,9 @@ class RewardsCfg:
     """Reward paid at every step for each subtask of a paid skill the episode has completed
     (subtasks a late start skipped count as completed). At or above the most one subtask's
     terms pay per step (1 with the default weights) moving on never lowers the per-step
-    reward, so lingering outside a subtask's success distance stops paying; unlike `subtask_bonus` it is paid for as long as
-    the episode lasts, not once. Off by default (docs/PROTOCOL.md)."""
+    reward, so lingering outside a subtask's success distance stops paying; unlike
+    `subtask_bonus` it is paid for as long as the episode lasts, not once. Off by default
+    (docs/PROTOCOL.md)."""
 
 
 @dataclass(frozen=True)
