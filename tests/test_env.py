@@ -142,7 +142,7 @@ def test_plan_errors_are_one_line():
     with pytest.raises(PlanError, match="unknown skill 'jump'; available: follow, carry, climb, sit"):
         compile_plan(dataclasses.replace(bad, plan=("jump",)))
     with pytest.raises(ValueError, match="unknown term"):
-        RewardManager(dataclasses.replace(cfg_of("follow").rewards, terms={"sit/sea": 1.0}), [0])
+        RewardManager(dataclasses.replace(cfg_of("follow").rewards, terms={"sit/sea": 1.0}), [])
 
 
 def test_success_scores():

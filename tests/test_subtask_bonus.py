@@ -78,9 +78,11 @@ def test_a_late_start_counts_the_subtasks_it_skipped_as_completed() -> None:
     """An episode that begins at a later subtask (`env.subtask_start_prob`) is paid for the
     subtasks before it, as one that completed them."""
     from detach.envs.rewards import RewardManager
+    from detach.skills.plan import compile_plan
 
     cfg = resolve(ROOT / "configs/tasks/lh1.yaml", "mlp", ["rewards.done_subtask_reward=2"])
-    manager = RewardManager(cfg.rewards, [0, 1, 2, 3])
+    plan = compile_plan(cfg.task)  # follow, carry, climb, sit
+    manager = RewardManager(cfg.rewards, plan)
     assert manager.done_pay(torch.tensor([0, 1, 2, 3])).tolist() == [0.0, 2.0, 4.0, 6.0]
-    assert RewardManager(resolve(ROOT / "configs/tasks/lh1.yaml", "mlp", []).rewards, [0, 1]).done_pay(
+    assert RewardManager(resolve(ROOT / "configs/tasks/lh1.yaml", "mlp", []).rewards, plan).done_pay(
         torch.tensor([1])) is None

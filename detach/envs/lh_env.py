@@ -36,7 +36,7 @@ from detach.host_sync import may_any, rows_at
 from detach.sim import make_backend, sim_settings
 from detach.sim.raster import Raster
 from detach.sim.state import SceneIndex, SimState, read_state
-from detach.skills import PlanError, Skill, skill_index, skill_names
+from detach.skills import PlanError, Skill, skill_names
 from detach.skills.context import SkillContext, SkillServices
 from detach.skills.plan import compile_plan, plan_error_text
 from detach.skills.trajectories import TrajectoryReference
@@ -106,7 +106,7 @@ class LHEnv(VecEnv):
         self.mid_task_target = None if self.mid_task_skill is None else torch.tensor(
             fixed if fixed is not None else [math.nan] * 3, dtype=torch.float32, device=self.device)
         self.subtask_starts = self._record_subtask_starts(ec.subtask_start_prob, assets, assets_root, verbose)
-        self.rewards = RewardManager(cfg.rewards, [skill_index(s.skill) for s in self.plan], self.device)
+        self.rewards = RewardManager(cfg.rewards, self.plan, self.device)
         self.terminations = Terminations(ec, self.tracker.skills)
         self.observations = ObservationBuilder(ec, self.num_envs, len(skill_names()), self.num_actions, raster,
                                                self.index.key.tolist(), self.index.dyn, self.index.obj_half,

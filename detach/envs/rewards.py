@@ -22,13 +22,14 @@ paper's protocol: climb and sit never rewarded).
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Callable, Sequence
 
 import torch
 
 from detach.config_schema import RewardsCfg
 from detach.host_sync import may_any
 from detach.skills import canonical_name, skill_class, skill_index, skill_names
+from detach.skills.base import Subtask
 from detach.skills.context import SkillContext
 
 
@@ -50,8 +51,7 @@ def canonical_term(name: str) -> str:
 class RewardManager:
     """Weighted sum of the current skill's terms plus the penalties; per-term logging."""
 
-    def __init__(self, cfg: RewardsCfg, plan_skills: list[int], device: torch.device | str = "cpu") -> None:
-        """plan_skills: the registry index of each subtask's skill, in plan order."""
+    def __init__(self, cfg: RewardsCfg, plan: Sequence[Subtask], device: torch.device | str = "cpu") -> None:
         terms = registered_terms()
         weights = {canonical_term(k): float(v) for k, v in cfg.terms.items()}
         unknown = sorted(set(weights) - set(terms))
@@ -65,10 +65,9 @@ class RewardManager:
         self.active = {n: w for n, w in self.weights.items() if w != 0.0 and n.split("/")[0] in paid}
         self.skill_of = {n: skill_index(n.split("/")[0]) for n in self.active}
         self.bonus_skills = [skill_index(s) for s in paid] if cfg.subtask_bonus > 0 else []
-        paid_index = {skill_index(s) for s in paid}
         before = [0]
-        for k in plan_skills[:-1]:
-            before.append(before[-1] + (k in paid_index))
+        for sub in plan[:-1]:
+            before.append(before[-1] + (sub.skill in paid))
         self.paid_before = torch.tensor(before, dtype=torch.float32, device=device) * cfg.done_subtask_reward
         """[num_subtasks] the per-step pay of an episode on subtask k: its earlier paid subtasks."""
 

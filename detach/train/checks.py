@@ -16,7 +16,7 @@ from detach.envs.rewards import RewardManager
 from detach.models.factory import model_class
 from detach.sim import SimConfigError, check_backend, check_sim, sim_settings
 from detach.config import ConfigError
-from detach.skills import PlanError, canonical_name, skill_index
+from detach.skills import PlanError, canonical_name
 from detach.skills.plan import compile_plan
 from detach.train.checkpoints import find_init_checkpoint
 from detach.train.teachers import teacher_source
@@ -52,7 +52,7 @@ def complete_run_config(cfg: RunConfig) -> RunConfig:
         raise origin.error(("env", "subtask_start_prob"), f"starts episodes at later subtasks, but task "
                            f"'{cfg.task.name}' has one subtask; set it to 0")
     try:
-        RewardManager(cfg.rewards, [skill_index(s.skill) for s in plan])
+        RewardManager(cfg.rewards, plan)
     except ValueError as exc:
         raise origin.error(("rewards", "terms"), str(exc).removeprefix("rewards.terms: ")) from None
     try:
