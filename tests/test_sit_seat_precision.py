@@ -1,0 +1,41 @@
+"""Sit's opt-in `seat_precision` term: a sharper kernel on the pelvis's distance to the sit
+point, paid only where it is switched on."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+import torch
+
+from detach.config import resolve
+from detach.envs.lh_env import make_env
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _sit_env(overrides: list[str]):
+    cfg = resolve(ROOT / "configs/tasks/sit.yaml", "mlp", ["env.character=puppet", *overrides], seed=3)
+    return make_env(cfg, num_envs=4, verbose=False)
+
+
+def test_seat_precision_pays_the_sharper_kernel_of_the_sit_distance() -> None:
+    torch.set_num_threads(1)
+    env = _sit_env(["+rewards.terms.sit/seat_precision=0.5"])
+    _obs, _rew, _dones, extras = env.step(torch.zeros(4, env.num_actions))
+    dist = env.context().dist
+    logged = float(extras["log"]["Episode_Reward/sit/seat_precision"])
+    seat = float(extras["log"]["Episode_Reward/sit/seat"])
+    assert logged == pytest.approx(float(torch.exp(-50.0 * dist ** 2).mean()), rel=1e-4, abs=1e-6)
+    assert seat == pytest.approx(float(torch.exp(-10.0 * dist ** 2).mean()), rel=1e-4, abs=1e-6)
+    # the sharper kernel is below the seat kernel wherever the pelvis is off the sit point
+    assert logged <= seat
+
+
+def test_seat_precision_is_off_by_default() -> None:
+    env = _sit_env([])
+    _obs, _rew, _dones, extras = env.step(torch.zeros(4, env.num_actions))
+    assert "Episode_Reward/sit/seat_precision" not in extras["log"]
+    assert "Episode_Reward/sit/seat" in extras["log"]
+    assert math.isfinite(float(extras["log"]["Episode_Reward/sit/seat"]))
