@@ -62,6 +62,13 @@ with torch.inference_mode():
             live[i] = False
         if not live.any():
             break
+
+
+def median(values):
+    v = sorted(values)
+    return v[len(v) // 2]
+
+
 groups = collections.defaultdict(list)
 for r in rows:
     if r is not None:
@@ -69,13 +76,12 @@ for r in rows:
 for scores, rs in sorted(groups.items(), key=lambda kv: -len(kv[1])):
     ends = collections.Counter(r[1] for r in rs)
     sit_start = [r[3][sit] for r in rs if r[3][sit] >= 0]
-    ss = f"sit begins at step {sorted(sit_start)[len(sit_start) // 2]} (median)" if sit_start else ""
+    ss = f"sit begins at step {median(sit_start)} (median)" if sit_start else ""
     near = [r for r in rs if r[4] < float("inf")]
-    dd = (f"; closest to the sit point: 3-D {sorted(r[4] for r in near)[len(near) // 2]:.2f} m, XY "
-          f"{sorted(r[5] for r in near)[len(near) // 2]:.2f} m, height {sorted(r[6] for r in near)[len(near) // 2]:+.2f} m"
-          if near else "")
+    dd = (f"; closest to the sit point: 3-D {median(r[4] for r in near):.2f} m, XY "
+          f"{median(r[5] for r in near):.2f} m, height {median(r[6] for r in near):+.2f} m" if near else "")
     print(f"{scores}: {len(rs)} trials; ended by {dict(ends)}; length median "
-          f"{sorted(r[2] for r in rs)[len(rs) // 2]}; {ss}{dd}")
+          f"{median(r[2] for r in rs)}; {ss}{dd}")
     for r in rs[:8] if near else ():
         print(f"    len {r[2]} begins {r[3]} sit closest 3-D {r[4]:.2f} XY {r[5]:.2f} dz {r[6]:+.2f} "
               f"(pelvis - sit point XY {r[7][0]:+.2f}, {r[7][1]:+.2f}; yaw {r[8]:+.0f} deg; {r[1]})")
