@@ -13,18 +13,25 @@ from detach.config import resolve
 from detach.envs.lh_env import make_env
 
 ROOT = Path(__file__).resolve().parents[1]
+N = 16
 
 
 def _sit_env(overrides: list[str]):
-    cfg = resolve(ROOT / "configs/tasks/sit.yaml", "mlp", ["env.character=puppet", *overrides], seed=3)
-    return make_env(cfg, num_envs=4, verbose=False)
+    """Sit with every episode started mid-task: seated at the sit point or standing near it."""
+    cfg = resolve(ROOT / "configs/tasks/sit.yaml", "mlp",
+                  ["env.character=puppet", "env.mid_task_init_prob=1.0", *overrides], seed=3)
+    return make_env(cfg, num_envs=N, verbose=False)
 
 
 def test_seat_precision_pays_the_sharper_kernel_of_the_sit_distance() -> None:
     torch.set_num_threads(1)
     env = _sit_env(["+rewards.terms.sit/seat_precision=0.5"])
-    _obs, _rew, _dones, extras = env.step(torch.zeros(4, env.num_actions))
+    _obs, rew, _dones, extras = env.step(torch.zeros(N, env.num_actions))
+    _obs, rew_off, _dones, _extras = _sit_env([]).step(torch.zeros(N, env.num_actions))
     dist = env.context().dist
+    assert (dist < 0.2).any() and (dist > 0.5).any()  # seated starts and standing ones
+    # the same seed and actions give the same state: the step's reward differs by W x the kernel
+    assert torch.allclose(rew - rew_off, 0.5 * torch.exp(-50.0 * dist ** 2), atol=1e-5)
     logged = float(extras["log"]["Episode_Reward/sit/seat_precision"])
     seat = float(extras["log"]["Episode_Reward/sit/seat"])
     assert logged == pytest.approx(float(torch.exp(-50.0 * dist ** 2).mean()), rel=1e-4, abs=1e-6)
@@ -35,7 +42,7 @@ def test_seat_precision_pays_the_sharper_kernel_of_the_sit_distance() -> None:
 
 def test_seat_precision_is_off_by_default() -> None:
     env = _sit_env([])
-    _obs, _rew, _dones, extras = env.step(torch.zeros(4, env.num_actions))
+    _obs, _rew, _dones, extras = env.step(torch.zeros(N, env.num_actions))
     assert "Episode_Reward/sit/seat_precision" not in extras["log"]
     assert "Episode_Reward/sit/seat" in extras["log"]
     assert math.isfinite(float(extras["log"]["Episode_Reward/sit/seat"]))
