@@ -10,6 +10,7 @@ of subtask scores.
 import collections
 import math
 import sys
+from statistics import median_high as median
 from pathlib import Path
 
 import torch
@@ -32,9 +33,7 @@ obs = env.get_observations()
 live = torch.ones(n, dtype=torch.bool)
 begin = torch.full((n, len(env.plan)), -1)
 best = torch.full((n,), float("inf"))
-best_xy = torch.full((n,), float("inf"))
-best_dz = torch.zeros(n)
-best_off = torch.zeros(n, 2)
+best_off = torch.zeros(n, 3)  # pelvis - sit point where the pelvis came closest
 best_yaw = torch.zeros(n)
 rows = [None] * n
 with torch.inference_mode():
@@ -47,27 +46,18 @@ with torch.inference_mode():
         d = ctx.dist
         closer = at_sit & (d < best)
         best = torch.where(closer, d, best)
-        off = ctx.state.root_pos - ctx.target
-        best_xy = torch.where(closer, off[:, :2].norm(dim=-1), best_xy)
-        best_dz = torch.where(closer, off[:, 2], best_dz)
-        best_off = torch.where(closer[:, None], off[:, :2], best_off)
+        best_off = torch.where(closer[:, None], ctx.state.root_pos - ctx.target, best_off)
         best_yaw = torch.where(closer, yaw_of(ctx.state.root_quat), best_yaw)
         obs, _, dones, extras = env.step(actor(obs))
         prog = extras.get("episode_progress")
         for i in (dones & live).nonzero().flatten().tolist():
             ended = [k for k in env.terminations.names if bool(prog[k][i])]
             rows[i] = (tuple(prog["score"][i].float().tolist()), ",".join(ended) or "timeout/last", t + 1,
-                       begin[i].tolist(), float(best[i]), float(best_xy[i]), float(best_dz[i]),
-                       best_off[i].tolist(), math.degrees(float(best_yaw[i])))
+                       begin[i].tolist(), float(best[i]), float(best_off[i, :2].norm()), float(best_off[i, 2]),
+                       best_off[i, :2].tolist(), math.degrees(float(best_yaw[i])))
             live[i] = False
         if not live.any():
             break
-
-
-def median(values):
-    v = sorted(values)
-    return v[len(v) // 2]
-
 
 groups = collections.defaultdict(list)
 for r in rows:
