@@ -348,7 +348,8 @@ class TrainCfg:
     stages: StagesCfg = StagesCfg()
     teachers: dict[str, str] = field(default_factory=dict)
     """Kickstarting (`detach.train.teachers`): skill -> a run folder or checkpoint whose policy
-    the student's mean action is pulled toward on that skill's steps, beside PPO; empty = off."""
+    the student's mean action is pulled toward on that skill's steps, beside PPO, or `oracle`
+    (the scripted oracle, a scriptable character only); empty = off."""
     teacher_weight: float = 1.0
     """Weight of the teachers' loss (mean squared action difference per step)."""
     teacher_only: bool = False

@@ -83,7 +83,34 @@ def test_a_policy_teaching_two_skills_is_loaded_once(teacher_run: Path) -> None:
     assert logs["teacher/follow/share"] == 1.0 and logs["teacher/carry/share"] == 0.0
 
 
+def test_the_oracle_teaches_on_the_students_states(tmp_path: Path) -> None:
+    """`oracle`: the env stores the scripted oracle's action of every state as the group
+    `oracle` of the rollout, and distilling it alone brings a fresh student toward it."""
+    out = tmp_path / "runs"
+    assert cli.main(["train", FOLLOW, "--model", "mlp", "--runs", str(out), *TINY, "train.max_iterations=6",
+                     "--no-eval", "+train.teachers.follow=oracle", "train.teacher_only=true",
+                     "train.learning_rate=1e-3", "train.schedule=fixed"]) == 0
+    (run,) = find_runs(out)
+    mse = [m["Loss/teacher/follow/mse"] for m in read_metrics(run.log_path)]
+    assert mse[-1] < 0.6 * mse[0], mse
+
+
+def test_the_oracle_group_is_the_oracles_action_in_the_state_observed() -> None:
+    from detach.envs.oracle import ORACLE_GROUP, Oracle
+
+    cfg = complete_run_config(resolve(FOLLOW, "mlp", TINY + ["+train.teachers.follow=oracle"]))
+    env, _runner = build_runner(cfg, None, "cpu", progress=False)
+    gen = torch.Generator().manual_seed(0)
+    for _ in range(3):
+        obs, *_ = env.step(torch.rand(env.num_envs, env.num_actions, generator=gen) * 2 - 1)
+    expected = Oracle(env)()
+    assert obs[ORACLE_GROUP].shape == (env.num_envs, env.num_actions)
+    assert torch.equal(obs[ORACLE_GROUP], expected)
+    assert expected.abs().sum() > 0
+
+
 @pytest.mark.parametrize("override, expected", [
+    ("+train.teachers.follow=oracle env.character=humanoid", "root servos"),
     ("+train.teachers.flow=RUN", "flow"),
     ("+train.teachers.follow=/nowhere/run", "neither a run folder nor a checkpoint file"),
     ("train.teacher_weight=-1", "teacher_weight"),
@@ -93,7 +120,7 @@ def test_bad_teachers_are_one_line_errors(teacher_run: Path, tmp_path: Path, cap
                                           expected: str) -> None:
     out = tmp_path / "runs"
     code = cli.main(["train", FOLLOW, "--model", "mlp", "--runs", str(out), *TINY, "train.max_iterations=1",
-                     override.replace("RUN", str(teacher_run))])
+                     *override.replace("RUN", str(teacher_run)).split()])
     assert code == 2
     err = capsys.readouterr().err
     assert expected in err and "train.teacher" in err, err

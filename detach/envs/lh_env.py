@@ -27,6 +27,7 @@ from detach.character import MovableObject, make_character
 from detach.character.body import BODY_NAMES
 from detach.config_schema import RunConfig
 from detach.envs.observations import ObservationBuilder
+from detach.envs.oracle import ORACLE_GROUP, Oracle
 from detach.envs.plan_tracker import PlanTracker
 from detach.envs.resets import ReferenceSampler, ResetSampler
 from detach.envs.rewards import RewardManager
@@ -112,6 +113,8 @@ class LHEnv(VecEnv):
                                                self.index.key.tolist(), self.index.dyn, self.index.obj_half,
                                                self.device)
         self.obs_spec = self.observations.spec
+        self._oracle: Oracle | None = None
+        """Set by `provide_oracle_actions`: the scripted oracle whose action every observation carries."""
         self.episode_length_buf = torch.zeros(self.num_envs, dtype=torch.long, device=self.device)
         self.steps = torch.zeros(self.num_envs, dtype=torch.long, device=self.device)
         """Control steps since the episode started (episode_length_buf may be randomised by a runner)."""
@@ -181,9 +184,21 @@ class LHEnv(VecEnv):
     def _observe(self, ctx: SkillContext, reset_ids: torch.Tensor) -> TensorDict:
         ahead = self.services.trajectory.reference(self.steps, self.observations.sample_times)
         t = self.tracker
-        return self.observations.build(ctx, reset_ids, ahead, t.follows_path[ctx.skill],
-                                       t.hold.float() / self.max_transition_steps,
-                                       t.subtask.float() / t.num_subtasks)
+        obs = self.observations.build(ctx, reset_ids, ahead, t.follows_path[ctx.skill],
+                                      t.hold.float() / self.max_transition_steps,
+                                      t.subtask.float() / t.num_subtasks)
+        if self._oracle is not None:
+            obs[ORACLE_GROUP] = self._oracle()
+        return obs
+
+    def provide_oracle_actions(self) -> None:
+        """From now on every observation carries the group `oracle`: the scripted oracle's
+        action [N, A] in the current state. Why: kickstarting compares the student with its
+        teachers on the rollout's stored observations, and the oracle reads the true state,
+        which only the env has (`train.teachers.SKILL=oracle`, training only; no policy reads
+        the group). ValueError for a character the oracle cannot drive."""
+        self._oracle = Oracle(self)
+        self.obs[ORACLE_GROUP] = self._oracle()
 
     def _mid_task_skill(self, prob: float) -> Skill | None:
         """The first subtask's skill when training starts some episodes mid-task, else None."""

@@ -19,6 +19,9 @@ from detach.character.body import NUM_DOF, START_HEIGHT
 from detach.skills.context import OracleCommand
 from detach.torch_math import yaw_of
 
+ORACLE_GROUP = "oracle"
+"""Observation group with the oracle's action, where the env provides it (`LHEnv.provide_oracle_actions`)."""
+
 
 class Oracle:
     """`oracle() -> actions [N, num_actions]`, called once per control step before `env.step`."""

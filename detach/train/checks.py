@@ -19,7 +19,7 @@ from detach.config import ConfigError
 from detach.skills import PlanError, canonical_name
 from detach.skills.plan import compile_plan
 from detach.train.checkpoints import find_init_checkpoint
-from detach.train.teachers import teacher_source
+from detach.train.teachers import ORACLE, teacher_source
 
 
 def complete_run_config(cfg: RunConfig) -> RunConfig:
@@ -74,9 +74,14 @@ def complete_run_config(cfg: RunConfig) -> RunConfig:
     for skill, source in cfg.train.teachers.items():
         try:
             canonical_name(skill)
-            teacher_source(source)
+            if source != ORACLE:
+                teacher_source(source)
         except ValueError as exc:
             raise origin.error(("train", "teachers", skill), str(exc)) from None
+        if source == ORACLE and not character.scriptable:
+            raise origin.error(("train", "teachers", skill), f"the scripted oracle drives a character with root "
+                               f"servos, and '{cfg.env.character}' has none; use env.character=puppet or a trained "
+                               "policy's run folder")
     if cfg.train.teacher_only and not cfg.train.teachers:
         raise origin.error(("train", "teacher_only"), "distils the policies of train.teachers, and there are none: "
                            "add +train.teachers.SKILL=RUN or set it to false")

@@ -116,6 +116,7 @@ def build_runner(cfg: RunConfig, checkpoint_dir: Path | None, device: str, log: 
     print(env.describe(), flush=True)
     lib = default_motion_lib(device="cpu")
     env.set_reference_sampler(reset_reference_sampler(lib))
+    teachers = load_teachers(cfg, env, device)  # before the runner: an oracle teacher adds an observation group
     stages = stage_lengths(cfg.train.stages, cfg.train.max_iterations) \
         if cfg.model.staged else [("ppo", cfg.train.max_iterations)]
     runner = DetachRunner(env, train_cfg_dict(cfg, env), device=device, schedule=stages,
@@ -146,7 +147,6 @@ def build_runner(cfg: RunConfig, checkpoint_dir: Path | None, device: str, log: 
             return total, parts
 
         alg.aux_loss_fn = aux_loss
-    teachers = load_teachers(cfg, env, device)
     bound_coef = cfg.train.action_bound_coef
     if teachers is not None or bound_coef > 0:
         def policy_loss(obs):

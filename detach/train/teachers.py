@@ -18,7 +18,11 @@ policy already has.
 
 The skill of a step is the `task` observation group (the skill one-hot, registry order); a
 teacher is any run folder (its newest checkpoint) or checkpoint file of a run whose model
-builds for this env: it keeps its own observation normalisers.
+builds for this env (it keeps its own observation normalisers), or `oracle`: the scripted
+oracle (`detach.envs.oracle`), whose action in the true state the env stores with every
+observation (`LHEnv.provide_oracle_actions`; a scriptable character only). Taught so, on the
+student's own states, the term is DAgger with a privileged expert: the way to teach a skill
+the oracle does and no trained policy does yet (the puppet sitting on LH1's raised chair).
 """
 
 from __future__ import annotations
@@ -32,11 +36,22 @@ from tensordict import TensorDict
 from detach.config import load_run_config
 from detach.config_schema import RunConfig
 from detach.envs.lh_env import LHEnv
+from detach.envs.oracle import ORACLE_GROUP
 from detach.run_contract import CONFIG_FILE
 from detach.skills import canonical_name, skill_names
 from detach.train.checkpoints import find_init_checkpoint
 from detach.train.trained_actor import load_trained_actor
 from detach.yaml_source import ConfigError
+
+ORACLE = "oracle"
+"""The `train.teachers` value that names the scripted oracle instead of a run."""
+
+
+class OracleTeacher(torch.nn.Module):
+    """The scripted oracle as a teacher: its action is the observation group the env adds."""
+
+    def forward(self, obs: TensorDict) -> torch.Tensor:
+        return obs[ORACLE_GROUP]
 
 
 def teacher_source(source: str) -> tuple[Path, Path]:
@@ -87,23 +102,31 @@ class Teachers:
 
 def load_teachers(cfg: RunConfig, env: LHEnv, device: str | torch.device) -> Teachers | None:
     """The teachers of `cfg.train.teachers` built for `env`, one per distinct checkpoint (None
-    when there are none)."""
+    when there are none). An `oracle` teacher makes `env` provide the oracle's actions, so
+    call this before a runner takes the env's first observations."""
     if not cfg.train.teachers:
         return None
     names = skill_names()
-    by_checkpoint: dict[Path, int] = {}
+    by_checkpoint: dict[Path | str, int] = {}
     teachers = Teachers([], [], [], cfg.train.teacher_weight)
     for skill, source in cfg.train.teachers.items():
-        checkpoint, run = teacher_source(source)
-        key = checkpoint.resolve()
+        key = ORACLE if source == ORACLE else teacher_source(source)[0].resolve()
         if key not in by_checkpoint:
-            actor, _state = load_trained_actor(load_run_config(run / CONFIG_FILE), env, checkpoint, device)
-            actor.requires_grad_(False)
             by_checkpoint[key] = len(teachers.actors)
-            teachers.actors.append(actor)
+            teachers.actors.append(_build_teacher(source, env, device))
             teachers.skills.append([])
             teachers.columns.append([])
         name = canonical_name(skill)
         teachers.skills[by_checkpoint[key]].append(name)
         teachers.columns[by_checkpoint[key]].append(names.index(name))
     return teachers
+
+
+def _build_teacher(source: str, env: LHEnv, device: str | torch.device) -> torch.nn.Module:
+    """The frozen actor a `train.teachers` value names."""
+    if source == ORACLE:
+        env.provide_oracle_actions()
+        return OracleTeacher()
+    checkpoint, run = teacher_source(source)
+    actor, _state = load_trained_actor(load_run_config(run / CONFIG_FILE), env, checkpoint, device)
+    return actor.requires_grad_(False)
