@@ -46,3 +46,17 @@ def test_seat_precision_is_off_by_default() -> None:
     assert "Episode_Reward/sit/seat_precision" not in extras["log"]
     assert "Episode_Reward/sit/seat" in extras["log"]
     assert math.isfinite(float(extras["log"]["Episode_Reward/sit/seat"]))
+
+
+def test_the_oracle_comes_down_continuously_as_it_closes_on_the_sit_point() -> None:
+    """The oracle's height command is continuous in the XY distance to the sit point. With a step
+    at 4 cm (above the chair beyond, on the seat within), a policy taught by the oracle
+    (`train.teachers.sit=oracle`) hovered 0.75 m above LH1's seat 5 cm off its centre."""
+    from detach.skills.sit import DESCENT, descent_height
+
+    d = torch.linspace(0.0, 0.5, 501)
+    seat, above = torch.full_like(d, 1.55), torch.full_like(d, 2.3)
+    z = descent_height(d, seat, above)
+    assert torch.all(z[d <= DESCENT[0]] == 1.55) and torch.all(z[d >= DESCENT[1]] == 2.3)
+    assert (z[1:] - z[:-1]).abs().max() < 0.01  # no jump between 1 mm steps
+    assert z[50] < seat[0] + 0.1 * (above[0] - seat[0])  # 5 cm off: most of the way down
