@@ -42,11 +42,13 @@ SEATED_SHARE = 0.3
 """Share of the mid-task starts seated at the sit point, the rest standing near the seat."""
 FOOTPRINT = 0.2
 """A start stands on the highest surface within this radius (m) of its pelvis, feet clear."""
-DESCENT = (0.04, 0.2)
-"""The oracle comes down from above the seat to it as its pelvis closes from 0.2 to 0.04 m (XY)
-of the sit point, its height command continuous in that distance: a policy taught by the
-oracle (`train.teachers.sit=oracle`) matches it to a few centimetres, not to the millimetre,
-and with a step at 0.04 m such a policy hovered 0.75 m above the seat, 5 cm off its centre."""
+DESCENT = (0.04, 0.5)
+"""The oracle comes down from above the seat to it as its pelvis closes from 0.5 to 0.04 m (XY)
+of the sit point, its height command continuous in that distance. Why: a policy taught by the
+oracle (`train.teachers.sit=oracle`) matches it to a few centimetres, not to the millimetre;
+with a step at 0.04 m such a policy hovered 0.75 m above LH1's seat 5 cm off its centre, and
+with the descent over 0.2-0.04 m, 0.5-0.6 m above it (its height action stayed the one of the
+approach, where the oracle rises)."""
 
 
 def descent_height(dxy: torch.Tensor, seat_z: torch.Tensor, above_z: torch.Tensor) -> torch.Tensor:
