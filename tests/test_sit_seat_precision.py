@@ -1,5 +1,6 @@
-"""Sit's opt-in `seat_precision` term: a sharper kernel on the pelvis's distance to the sit
-point, paid only where it is switched on."""
+"""Sit near the seat: the opt-in `seat_precision` term (a sharper kernel on the pelvis's
+distance to the sit point, paid only where it is switched on) and the oracle's descent onto
+the seat, which a policy taught by the oracle must be able to follow."""
 
 from __future__ import annotations
 
