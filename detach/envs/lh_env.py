@@ -188,7 +188,7 @@ class LHEnv(VecEnv):
                                       t.hold.float() / self.max_transition_steps,
                                       t.subtask.float() / t.num_subtasks)
         if self._oracle is not None:
-            obs[ORACLE_GROUP] = self._oracle()
+            obs[ORACLE_GROUP] = self._oracle(ctx=ctx)
         return obs
 
     def provide_oracle_actions(self) -> None:

@@ -16,7 +16,7 @@ import torch
 
 from detach.character import ScriptedCommand, scriptable_characters
 from detach.character.body import NUM_DOF, START_HEIGHT
-from detach.skills.context import OracleCommand
+from detach.skills.context import OracleCommand, SkillContext
 from detach.torch_math import yaw_of
 
 ORACLE_GROUP = "oracle"
@@ -33,9 +33,11 @@ class Oracle:
         self.env = env
         self.dev = env.device
 
-    def __call__(self, _obs=None) -> torch.Tensor:
+    def __call__(self, _obs=None, ctx: SkillContext | None = None) -> torch.Tensor:
+        """The actions for the env's current state; `ctx` is its context where the caller has
+        it already (the env's step), else computed here."""
         env = self.env
-        ctx = env.context()
+        ctx = env.context() if ctx is None else ctx
         n, p = env.num_envs, ctx.state.root_pos
         yaw = yaw_of(ctx.state.root_quat)
         ground = env.services.raster.highest_within(p[:, :2], 0.2, directions=4)  # static surface under the feet

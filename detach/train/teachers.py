@@ -110,10 +110,11 @@ def load_teachers(cfg: RunConfig, env: LHEnv, device: str | torch.device) -> Tea
     by_checkpoint: dict[Path | str, int] = {}
     teachers = Teachers([], [], [], cfg.train.teacher_weight)
     for skill, source in cfg.train.teachers.items():
-        key = ORACLE if source == ORACLE else teacher_source(source)[0].resolve()
+        found = None if source == ORACLE else teacher_source(source)
+        key = ORACLE if found is None else found[0].resolve()
         if key not in by_checkpoint:
             by_checkpoint[key] = len(teachers.actors)
-            teachers.actors.append(_build_teacher(source, env, device))
+            teachers.actors.append(_build_teacher(found, env, device))
             teachers.skills.append([])
             teachers.columns.append([])
         name = canonical_name(skill)
@@ -122,11 +123,11 @@ def load_teachers(cfg: RunConfig, env: LHEnv, device: str | torch.device) -> Tea
     return teachers
 
 
-def _build_teacher(source: str, env: LHEnv, device: str | torch.device) -> torch.nn.Module:
-    """The frozen actor a `train.teachers` value names."""
-    if source == ORACLE:
+def _build_teacher(found: tuple[Path, Path] | None, env: LHEnv, device: str | torch.device) -> torch.nn.Module:
+    """The frozen actor of a teacher's (checkpoint, run folder), or the oracle's for None."""
+    if found is None:
         env.provide_oracle_actions()
         return OracleTeacher()
-    checkpoint, run = teacher_source(source)
+    checkpoint, run = found
     actor, _state = load_trained_actor(load_run_config(run / CONFIG_FILE), env, checkpoint, device)
     return actor.requires_grad_(False)
