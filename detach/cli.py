@@ -598,8 +598,10 @@ def _refuse_if_alive(run: RunFolder) -> None:
                       f"(kill -TERM {status.pid}) and resume when it is interrupted", str(run.path))
 
 
+# What a resume may change: how long and how often to save, how to evaluate, and how many
+# CPU threads torch uses (speed, not numbers: a run may go on where there are more cores).
 RESUME_OVERRIDABLE = ("train.max_iterations", "train.save_interval", "train.keep_checkpoints",
-                      "train.stages.", "eval.")
+                      "train.torch_threads", "train.stages.", "eval.")
 
 
 def _extended_config(run: RunFolder, overrides: Sequence[str], checkpoint: Path) -> RunConfig:
@@ -618,7 +620,7 @@ def _extended_config(run: RunFolder, overrides: Sequence[str], checkpoint: Path)
         key = text.split("=", 1)[0]
         if not key.startswith(RESUME_OVERRIDABLE):
             raise ConfigError(f"cannot change '{key}' when resuming; only "
-                              f"{', '.join(RESUME_OVERRIDABLE)}* may change")
+                              f"{', '.join(k + '*' if k.endswith('.') else k for k in RESUME_OVERRIDABLE)} may change")
     old, new = run.config(), load_run_config(run.config_path, overrides)
     completed = checkpoint_iteration(checkpoint.name)
     if new.train.max_iterations <= completed:

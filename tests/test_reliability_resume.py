@@ -119,3 +119,16 @@ def test_the_code_change_warning_names_the_changed_files(detach_run: RunFolder) 
     _trained_with(detach_run, {**now, "diff": "+x\n"})
     warning = code_change_since(detach_run, {**now, "diff": ""})
     assert warning is not None and f"at commit {now['commit'][:10]} (uncommitted changes); it resumes" in warning
+
+
+def test_resuming_may_change_the_number_of_torch_threads(detach_run: RunFolder, monkeypatch: pytest.MonkeyPatch,
+                                                         capsys: pytest.CaptureFixture[str]) -> None:
+    """A run started on a laptop may go on where there are more cores (or fewer, beside
+    another run): the thread count changes speed, not the numbers a checkpoint holds."""
+    monkeypatch.setattr("detach.runs.session.train_and_evaluate", lambda *_a, **_k: None)
+    assert cli.main(["--resume", str(detach_run.path), "train.torch_threads=1"]) == 0, capsys.readouterr().err
+    cfg = detach_run.config()
+    assert cfg.train.torch_threads == 1 and cfg.train.max_iterations == 20
+    assert cfg.train.stages == StagesCfg(2, 8, 10), "the schedule is the run's own"
+    assert cli.main(["--resume", str(detach_run.path), "train.learning_rate=1.0e-3"]) == 2
+    assert "cannot change 'train.learning_rate' when resuming" in capsys.readouterr().err
