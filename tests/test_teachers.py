@@ -172,3 +172,19 @@ def test_the_action_bound_loss_is_logged_only_when_asked(tmp_path: Path) -> None
         (run,) = find_runs(out)
         logged = read_metrics(run.log_path)[-1]
         assert ("Loss/action_bound/loss" in logged) == (coef > 0), sorted(logged)
+
+
+def test_a_teacher_is_recorded_as_the_checkpoint_it_resolved_to(teacher_run: Path, tmp_path: Path,
+                                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    """A teacher given as a run folder relative to the shell's directory is written to the
+    student's config.yaml as the absolute checkpoint file it meant then: a resume from another
+    directory finds it, and one after the teacher's run trained on still learns from the same
+    teacher (before, config.yaml held the text as given, and a resume chose the teacher's
+    newest checkpoint anew)."""
+    monkeypatch.chdir(teacher_run.parent)
+    cfg = complete_run_config(resolve(FOLLOW, "mlp", TINY + [f"+train.teachers.follow={teacher_run.name}",
+                                                             "+train.teachers.sit=oracle"]))
+    recorded = Path(cfg.train.teachers["follow"])
+    assert recorded.is_absolute() and recorded == (teacher_run / "checkpoints" / "model_0.pt").resolve()
+    assert cfg.train.teachers["sit"] == "oracle"
+    assert complete_run_config(cfg).train.teachers == cfg.train.teachers, "completing twice changes nothing"

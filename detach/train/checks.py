@@ -23,8 +23,10 @@ from detach.train.teachers import ORACLE, teacher_source
 
 
 def complete_run_config(cfg: RunConfig) -> RunConfig:
-    """`cfg` checked against the registries (ConfigError naming file, line and key) and with
-    `model.init_noise_std` resolved from the character when it is null."""
+    """`cfg` checked against the registries (ConfigError naming file, line and key), with
+    `model.init_noise_std` resolved from the character when it is null and each teacher of
+    `train.teachers` pinned to the absolute checkpoint file it names now (a resume from
+    another directory, or after the teacher's run trained on, learns from the same teacher)."""
     origin = cfg.origin
     try:
         character = character_class(cfg.env.character)
@@ -71,11 +73,11 @@ def complete_run_config(cfg: RunConfig) -> RunConfig:
             raise origin.error(("train", "amp", "skill_weights", skill), str(exc)) from None
         if not weight >= 0:
             raise origin.error(("train", "amp", "skill_weights", skill), f"expected a weight >= 0, found {weight}")
+    pinned: dict[str, str] = {}
     for skill, source in cfg.train.teachers.items():
         try:
             canonical_name(skill)
-            if source != ORACLE:
-                teacher_source(source)
+            pinned[skill] = source if source == ORACLE else str(teacher_source(source)[0].resolve())
         except ValueError as exc:
             raise origin.error(("train", "teachers", skill), str(exc)) from None
         if source == ORACLE and not character.scriptable:
@@ -97,6 +99,8 @@ def complete_run_config(cfg: RunConfig) -> RunConfig:
             find_init_checkpoint(cfg.train.init_from)
         except ConfigError as exc:
             raise origin.error(("train", "init_from"), str(exc).removeprefix("train.init_from: ")) from None
+    if pinned != cfg.train.teachers:  # config.yaml records the checkpoint each teacher is, absolute
+        cfg = dataclasses.replace(cfg, train=dataclasses.replace(cfg.train, teachers=pinned))
     if cfg.sim != sim_settings(cfg.sim):  # config.yaml records what the backend decided
         cfg = dataclasses.replace(cfg, sim=sim_settings(cfg.sim))
     if cfg.model.init_noise_std is None:
