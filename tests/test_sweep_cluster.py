@@ -3,6 +3,7 @@ and the submitit launcher (SLURM) on submitit's local executor."""
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import re
 import textwrap
@@ -13,7 +14,8 @@ import pytest
 from detach import cli
 from detach.runs.folder import find_runs
 from detach.config import ConfigError
-from detach.runs.sweep import run_sweep, stderr_tail
+from detach.runs.sweep import cell_work, cells, load_sweep, run_sweep, stderr_tail
+from detach.runs.sweep_eta import SweepClock
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ["env.character=puppet", "sim.num_envs=4", "train.num_steps_per_env=8", "eval.num_envs=2",
@@ -72,3 +74,38 @@ def test_the_submitit_launcher_runs_cells_as_jobs(tmp_path: Path, monkeypatch: p
     monkeypatch.setenv("DETACH_SUBMITIT", "[1, 2]")
     with pytest.raises(ConfigError, match="DETACH_SUBMITIT: expected a JSON object"):
         run_sweep(one_stage_sweep(tmp_path / "b", [*TINY, "seed=1"]), tmp_path / "b" / "runs", launcher="slurm")
+
+
+def test_the_eta_weighs_cells_by_their_env_steps_and_counts_running_cells() -> None:
+    """The sweep of 2026-12-05 printed 'ETA 7.4 h' after its first cell and took 2.2 h: the
+    mean time per finished cell counted the 25-iteration Carry cells as 400-iteration Follow
+    cells and ignored the Follow cell running beside it."""
+    now = [0.0]
+    clock = SweepClock(jobs=2, now=lambda: now[0])
+    for cell, work in (("follow/a", 800.0), ("follow/b", 800.0), ("carry/a", 200.0), ("carry/b", 200.0)):
+        clock.add(cell, work)
+    clock.start("follow/a")
+    clock.start("follow/b")
+    assert clock.eta_s() is None and clock.progress().endswith("ETA ?")
+    now[0] = 800.0  # one second per unit of work
+    clock.end("follow/a")
+    # follow/b has run as long as follow/a took: nothing left of it; the two Carry cells share 2 slots
+    assert clock.eta_s() == pytest.approx(200.0)
+    clock.end("follow/b")
+    clock.start("carry/a")
+    now[0] = 850.0
+    assert clock.eta_s() == pytest.approx((150.0 + 200.0) / 2)
+    clock.skip("carry/b")  # its parent failed: nothing of it is left to run
+    assert clock.eta_s() == pytest.approx(150.0)
+    assert clock.progress() == "elapsed 14 min, ETA 2 min"
+
+
+def test_a_cells_work_is_its_training_samples_plus_its_evaluation_steps() -> None:
+    sweep_path = ROOT / "configs/sweeps/table1.yaml"
+    sweep = load_sweep(sweep_path, preset="laptop")
+    by_stage = {c.stage: c for c in cells(sweep, sweep_path) if c.model == "detach"}
+    follow, carry = by_stage["follow"], by_stage["carry"]
+    assert cell_work(follow, trials=100) == 400 * 64 * 32 + 100 * 1200  # follow.yaml's 40 s episodes
+    assert cell_work(carry, trials=100) == 25 * 256 * 32 + 100 * 600  # the preset's 20 s Carry episodes
+    broken = dataclasses.replace(carry, overrides=(*carry.overrides, "train.no_such_key=1"))
+    assert cell_work(broken, trials=100) is None  # counted as a mean cell; the run itself says why

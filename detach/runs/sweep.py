@@ -39,10 +39,11 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import BinaryIO, Literal, Sequence
 
-from detach.config import find_config_file, load_merged
+from detach.config import find_config_file, load_merged, resolve
 from detach.config_validate import Builder
 from detach.run_contract import eval_file
 from detach.runs.folder import RunFolder, find_runs
+from detach.runs.sweep_eta import SweepClock
 from detach.yaml_source import ConfigError
 
 PhaseB = Literal["zero_shot", "composition"]
@@ -518,22 +519,15 @@ class _Work:
             return _run_commands(self.commands(), self.cwd, self.env)
 
 
-def _eta(done: int, total: int, started: float) -> str:
-    if done == 0:
-        return "?"
-    left = (time.monotonic() - started) / done * (total - done)
-    return _duration(left)
-
-
-def _duration(seconds: float) -> str:
-    if seconds >= 3600:
-        return f"{seconds / 3600:.1f} h"
-    return f"{seconds / 60:.0f} min" if seconds >= 60 else f"{seconds:.0f} s"
-
-
-def _progress(done: int, total: int, started: float) -> str:
-    """'elapsed 12 min, ETA 1.5 h' (the ETA from the mean time per cell ended so far)."""
-    return f"elapsed {_duration(time.monotonic() - started)}, ETA {_eta(done, total, started)}"
+def cell_work(cell: Cell, trials: int) -> float | None:
+    """Env steps the cell simulates: its training samples plus its evaluations' trials at full
+    episode length (None when its config does not resolve; the run will say why)."""
+    try:
+        cfg = resolve(cell.task, cell.model, cell.overrides, seed=cell.seed, presets=cell.presets)
+    except (ConfigError, OSError):
+        return None
+    samples = cfg.train.max_iterations * cfg.train.num_steps_per_env * cfg.sim.num_envs
+    return float(samples + len(cell.evals) * trials * cfg.env.episode_length)
 
 
 def run_sweep(sweep_path: Path, out: Path, jobs: int = 1, quick: bool = False, device: str = "cpu",
@@ -571,7 +565,10 @@ def _run_graph(sweep: SweepCfg, sweep_path: Path, out: Path, jobs: int, device: 
     env = _cell_env(jobs)
     running: dict[Future, Cell] = {}
     failed: set[str] = set()
-    finished, started = 0, time.monotonic()
+    finished = 0
+    clock = SweepClock(jobs)
+    for cell in pending:
+        clock.add(cell.key, cell_work(cell, sweep.eval_trials))
     try:
         while pending or running:
             for cell in list(pending):
@@ -581,11 +578,13 @@ def _run_graph(sweep: SweepCfg, sweep_path: Path, out: Path, jobs: int, device: 
                     pending.remove(cell)
                     failed.add(cell.key)
                     finished += 1
+                    clock.skip(cell.key)
                     print(f"[{finished}/{total}] {cell.key}: SKIPPED (its parent cell failed)", flush=True)
                 elif cell.parent is None or cell.parent in done_keys:
                     pending.remove(cell)
                     running[pool.submit(_Work(cell, out, sweep.eval_trials, device, env))] = cell
-                    print(f"[{finished}/{total}] {cell.key}: start ({_progress(finished, total, started)})",
+                    clock.start(cell.key)
+                    print(f"[{finished}/{total}] {cell.key}: start ({clock.progress()})",
                           flush=True)
             if not running:
                 break
@@ -598,14 +597,15 @@ def _run_graph(sweep: SweepCfg, sweep_path: Path, out: Path, jobs: int, device: 
                 cell = running.pop(future)
                 code, tail = future.result()
                 finished += 1
+                clock.end(cell.key)
                 if code == 0:
                     done_keys.add(cell.key)
-                    print(f"[{finished}/{total}] {cell.key}: done ({_progress(finished, total, started)})",
+                    print(f"[{finished}/{total}] {cell.key}: done ({clock.progress()})",
                           flush=True)
                 else:
                     failed.add(cell.key)
                     print(f"[{finished}/{total}] {cell.key}: FAILED (exit {code}; "
-                          f"{_progress(finished, total, started)})"
+                          f"{clock.progress()})"
                           + "".join(f"\n    | {line}" for line in tail.splitlines()), flush=True)
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM (detach.cli turns SIGTERM into KeyboardInterrupt)
         _stop_children()
