@@ -325,6 +325,13 @@ class TrainCfg:
     schedule holds it) the std parameter moves by ~1e-5 per step, so a stage keeps its source's
     exploration noise for good: the puppet's 1.0 (2 m/s of root speed per unit) made every
     Carry policy drop a held box within a few steps."""
+    init_action_mean: dict[str, float] = field(default_factory=dict)
+    """With `init_from`: named actions of the character (the puppet's `grasp`) whose mean
+    starts at the given value in every state (their row of the policy's output layer zeroed,
+    its bias set to the value). An action that had no effect in the source task (the grasp in
+    Follow, which has nothing to hold) got only noise from PPO's gradient, so its mean is
+    whatever that drift left: -0.6 at the box in one Follow cell, where Carry's exploration
+    at std 0.3 never asked for a grasp, about +0.1 in another, which learned Carry."""
     init_normalizers: Literal["merge", "restart", "keep"] = "merge"
     """With `init_from`: `merge` (default) keeps the source's observation statistics for the
     inputs it saw vary and takes this run's task's (from its first update) for those it never

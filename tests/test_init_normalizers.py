@@ -155,3 +155,43 @@ def test_merged_statistics_keep_what_the_policy_learned_from_and_take_the_rest_f
     before = norm._mean.clone()
     norm.update(batch * 0.0)  # later updates are rsl-rl's own, for every input
     assert bool((norm._mean[0, unseen] != before[0, unseen]).any())
+
+
+@pytest.mark.parametrize("model", ["mlp", "detach"])
+def test_a_later_stage_can_start_the_grasp_at_a_chosen_mean(follow_run: Path, tmp_path: Path, model: str,
+                                                        capsys: pytest.CaptureFixture[str]) -> None:
+    """Follow has nothing to hold, so its policy's grasp mean is whatever PPO's noise left: in
+    one Follow cell -0.6 at the box, where Carry's exploration never asked for a grasp."""
+    source = follow_run
+    if model != "mlp":
+        out = tmp_path / "follow"
+        assert cli.main(["train", str(ROOT / "configs/tasks/follow.yaml"), "--model", model, "--runs", str(out),
+                         *TINY, "train.max_iterations=1", "--no-eval"]) == 0
+        (run,) = find_runs(out)
+        source = run.path
+    cfg = complete_run_config(resolve(ROOT / "configs/tasks/carry.yaml", model, TINY + [
+        f"train.init_from={source}", "train.init_action_mean={grasp: 0.1}"]))
+    env, runner = build_runner(cfg, None, "cpu", progress=False)
+    layers = [m for m in runner.alg.actor.mlp.modules() if isinstance(m, torch.nn.Linear)]
+    saved = torch.load(sorted((source / "checkpoints").glob("model_*.pt"))[-1], weights_only=True)
+    grasp = env.num_actions - 1
+    assert "grasp mean 0.1 in every state" in load_initial_weights(runner, cfg)
+    actor = runner.alg.actor
+    obs = env.get_observations()
+    with torch.no_grad():
+        mean = actor(obs)
+    torch.testing.assert_close(mean[:, grasp], torch.full_like(mean[:, grasp], 0.1))
+    assert mean[:, :grasp].std(0).max() > 0  # the other actions still depend on the state
+    out_weight = layers[-1].weight
+    key = next(k for k, v in saved["actor_state_dict"].items() if k.startswith("mlp.") and v.shape == out_weight.shape)
+    torch.testing.assert_close(out_weight[:grasp], saved["actor_state_dict"][key][:grasp])  # the rest as loaded
+    # a name the character does not have, or no policy to start from: one-line errors, nothing written
+    for bad, words in (([f"train.init_from={source}", "+train.init_action_mean.grip=0.1"], "found 'grip'"),
+                       ([f"train.init_from={source}", "+train.init_action_mean.grasp=2"], "in [-1, 1]"),
+                       (["+train.init_action_mean.grasp=0.1"], "starts from scratch")):
+        capsys.readouterr()
+        assert cli.main(["train", str(ROOT / "configs/tasks/carry.yaml"), "--model", model, "--runs",
+                         str(tmp_path / "runs"), *TINY, *bad]) == 2
+        err = capsys.readouterr().err
+        assert "train.init_action_mean" in err and words in err, err
+    assert not (tmp_path / "runs").exists()

@@ -91,6 +91,8 @@ class Character(ABC):
     scriptable: ClassVar[bool] = False
     can_hold: ClassVar[bool] = False
     """`hold` can start an episode with an object held (`env.mid_task_init_prob`)."""
+    named_actions: ClassVar[dict[str, int]] = {}
+    """Action dimensions a config may name (`train.init_action_mean`), e.g. the puppet's grasp."""
 
     def __init__(self) -> None:
         rng = torch.as_tensor(dof_ranges(), dtype=torch.float32)

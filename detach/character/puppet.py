@@ -104,6 +104,7 @@ class Puppet(Character):
     regulariser, would only teach it to freeze."""
     scriptable = True
     can_hold = True
+    named_actions = {"grasp": GRASP_ACTION}
 
     # ------------------------------------------------------------------ building
     def add_root(self, pelvis: mujoco.MjsBody) -> None:

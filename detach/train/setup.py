@@ -16,6 +16,7 @@ import numpy as np
 import torch
 from rsl_rl.modules import EmpiricalNormalization
 
+from detach.character import character_class
 from detach.config import ConfigError, load_run_config
 from detach.config_schema import RunConfig, TaskCfg
 from detach.envs.lh_env import LHEnv, make_env
@@ -226,6 +227,12 @@ def load_initial_weights(runner: DetachRunner, cfg: RunConfig) -> str:
     if cfg.train.init_action_std is not None:
         restarted += f", action std {set_action_std(alg.actor, cfg.train.init_action_std):.2f} -> " \
                      f"{cfg.train.init_action_std:g}"
+    if cfg.train.init_action_mean:
+        named = character_class(cfg.env.character).named_actions
+        means = {named[a]: v for a, v in cfg.train.init_action_mean.items()}
+        norms = set_action_means(alg.actor, means)
+        restarted += ", " + ", ".join(f"{a} mean {v:g} in every state (its output row's norm {n:.2f} before)"
+                                      for (a, v), n in zip(cfg.train.init_action_mean.items(), norms))
     return f"initialised from {checkpoint} (model {source_model}, iteration {state.get('iter', '?')}{restarted})"
 
 
@@ -244,6 +251,24 @@ def set_action_std(actor: torch.nn.Module, std: float) -> float:
     else:
         raise ConfigError(f"train.init_action_std: the policy's distribution ({type(dist).__name__}) has no "
                           "state-independent std to set")
+    return before
+
+
+def set_action_means(actor: torch.nn.Module, means: dict[int, float]) -> list[float]:
+    """Make each action of `means` (index -> value) start at that mean in every state: its row
+    of the output layer of `actor`'s head (rsl-rl's `mlp`, whose last Linear writes the
+    Gaussian's mean) zeroed, its bias the value; returns the norm each row had (weights and
+    bias, for the log)."""
+    layers = [m for m in actor.mlp.modules() if isinstance(m, torch.nn.Linear)]
+    if not layers or layers[-1].out_features != actor.distribution.output_dim:
+        raise ConfigError(f"train.init_action_mean: the policy ({type(actor).__name__}) has no output layer "
+                          "that writes the action mean")
+    out = layers[-1]
+    with torch.no_grad():
+        before = [float(torch.cat([out.weight[a], out.bias[a:a + 1]]).norm()) for a in means]
+        for action, value in means.items():
+            out.weight[action] = 0.0
+            out.bias[action] = value
     return before
 
 
