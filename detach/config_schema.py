@@ -331,7 +331,7 @@ class TrainCfg:
     its bias set to the value). An action that had no effect in the source task (the grasp in
     Follow, which has nothing to hold) got only noise from PPO's gradient, so its mean is
     whatever that drift left: -0.6 at the box in one Follow cell, where Carry's exploration
-    at std 0.3 never asked for a grasp, about +0.1 in another, which learned Carry."""
+    at std 0.3 never asked for a grasp and Carry scored 0.175; about +0.1 in an earlier one."""
     init_normalizers: Literal["merge", "restart", "keep"] = "merge"
     """With `init_from`: `merge` (default) keeps the source's observation statistics for the
     inputs it saw vary and takes this run's task's (from its first update) for those it never
