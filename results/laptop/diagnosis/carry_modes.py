@@ -2,7 +2,9 @@
 evaluation (default starts, the run's evaluation settings) of each checkpoint twice, with mean
 and with sampled actions, and prints per mode the Carry success, the shares delivered / grasped
 only, and the grasp action's mean while both hands are within 0.12 m of the box (where a grasp
-request is granted) and not yet holding it.
+request is granted) and the box is not lifted; of those steps, the share where the character
+already holds the box (welded, not lifted), the box's height above its rest and the pelvis
+height action's mean.
 
     python results/laptop/diagnosis/carry_modes.py RUN_DIR TRIALS CHECKPOINT.pt [CHECKPOINT.pt ...]
 
@@ -32,6 +34,9 @@ for name in sys.argv[3:]:
         env = make_env(cfg, num_envs=cfg.eval.num_envs, device="cpu", eval_mode=True)
         actor, _ = load_policy(cfg, env, Path(name))
         near_grasp: list[torch.Tensor] = []
+        near_held: list[torch.Tensor] = []
+        near_rise: list[torch.Tensor] = []
+        near_height: list[torch.Tensor] = []
 
         def policy(obs, actor=actor, env=env, mode=mode, near_grasp=near_grasp):
             a = actor(obs, stochastic_output=mode == "sampled")
@@ -40,6 +45,9 @@ for name in sys.argv[3:]:
             d = point_box_distance(hands, ctx.obj_pos[:, None], ctx.obj_quat[:, None], ctx.obj_half[:, None])
             near = (d < 0.12).all(-1) & ~box_lifted(ctx)
             near_grasp.append(a[near, -1])
+            near_held.append(env.character.held_object()[near] >= 0)
+            near_rise.append((ctx.obj_pos[:, 2] - ctx.obj_rest_z)[near])
+            near_height.append(a[near, -2])
             return a
 
         res = run_evaluation(env, policy, trials, cfg, progress=False)
@@ -51,3 +59,8 @@ for name in sys.argv[3:]:
               f"{(scores == 0.5).float().mean().item():.2f}", flush=True)
         print(f"  grasp action near the box: n={len(g)} mean={g.mean().item() if len(g) else float('nan'):+.3f} "
               f"share>0={(g > 0).float().mean().item() if len(g) else float('nan'):.2f}", flush=True)
+        if len(g):
+            held, rise, height = torch.cat(near_held).float(), torch.cat(near_rise), torch.cat(near_height)
+            print(f"  of those steps: held (welded) {held.mean().item():.2f}, box above rest median "
+                  f"{rise.median().item():+.3f} m, height action mean {height.mean().item():+.3f} "
+                  f"(held: {height[held > 0].mean().item() if held.any() else float('nan'):+.3f})", flush=True)
