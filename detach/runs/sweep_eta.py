@@ -20,7 +20,8 @@ class SweepClock:
         self.jobs = max(jobs, 1)
         self.now = now
         self.started = now()
-        self.weights: dict[Hashable, float] = {}
+        self.weights: dict[Hashable, float | None] = {}
+        """Cell still to run or running -> its work (None: not sized, counted as the mean)."""
         self.running: dict[Hashable, float] = {}
         """Cell -> when it started."""
         self.spent = 0.0
@@ -30,11 +31,10 @@ class SweepClock:
 
     def add(self, cell: Hashable, work: float | None) -> None:
         """A cell still to run; `work` None when it could not be sized (counted as the mean)."""
-        if work is not None and work > 0:
-            self.weights[cell] = float(work)
+        sized = work is not None and work > 0
+        self.weights[cell] = float(work) if sized else None
+        if sized:
             self._known.append(float(work))
-        else:
-            self.weights.setdefault(cell, -1.0)
 
     def start(self, cell: Hashable) -> None:
         self.running[cell] = self.now()
@@ -69,8 +69,8 @@ class SweepClock:
         return f"elapsed {duration(self.now() - self.started)}, ETA {'?' if eta is None else duration(eta)}"
 
     def _work(self, cell: Hashable) -> float:
-        work = self.weights.get(cell, -1.0)
-        if work > 0:
+        work = self.weights.get(cell)
+        if work is not None:
             return work
         return sum(self._known) / len(self._known) if self._known else 1.0
 
@@ -79,4 +79,3 @@ def duration(seconds: float) -> str:
     if seconds >= 3600:
         return f"{seconds / 3600:.1f} h"
     return f"{seconds / 60:.0f} min" if seconds >= 60 else f"{seconds:.0f} s"
-
