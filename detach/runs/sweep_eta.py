@@ -1,8 +1,9 @@
 """A sweep's time estimate, weighted by how much simulation each cell does.
 
-The cells of one sweep differ by more than tenfold in cost (the laptop preset's Follow cells
-train 400 iterations of 64 envs, its Carry cells 25 of 256), so an ETA from the mean time per
-finished cell overstates the rest after a long first cell (7.4 h said, 2.2 h taken). Here a
+The cells of one sweep differ severalfold in cost (the laptop preset's Follow cells train 400
+iterations of 64 envs, its Carry cells 25 of 256: four times the samples, 49 against 10 minutes
+for DETACH), so an ETA from the mean time per finished cell overstates the rest after a long
+first cell (7.4 h said, 2.2 h taken). Here a
 cell's work is the env steps it simulates (training samples plus its evaluations' trials at
 full episode length), a finished cell gives seconds per step, and the cells still running
 count with what they have left at that rate.
