@@ -348,6 +348,15 @@ class TrainCfg:
     where nothing ends an episode early (Carry's 1200 steps = 37 PPO iterations of 32 steps),
     every iteration's batch comes from one phase of the same episodes: the approach to the box
     only in the first of each 37 iterations."""
+    critic_warmup_iterations: int = 0
+    """The first iterations of this run train the critic alone, at
+    `critic_warmup_learning_rate`: the policy and every parameter it shares with the critic stay
+    as they are (no PPO step on them, no auxiliary or teacher loss), so that a stage started
+    from another task's run (`init_from`) has values of its own task before its advantages move
+    the policy. At a later stage's learning rate (1e-5) the critic, which shares PPO's
+    optimiser, would otherwise fit the new rewards no faster than the policy moves."""
+    critic_warmup_learning_rate: float = 1.0e-3
+    """Learning rate of the critic-only iterations (`critic_warmup_iterations`)."""
     per_objective_advantage_norm: bool = False
     """With a multi-head critic (CML), normalise the advantage of each objective before their
     weighted sum; otherwise the weighted sum is normalised as one."""
@@ -458,7 +467,8 @@ VALUE_RANGES: dict[str, Range] = {
     "train.clip_param": POSITIVE, "train.entropy_coef": AT_LEAST_0, "train.value_loss_coef": AT_LEAST_0,
     "train.num_learning_epochs": AT_LEAST_1, "train.num_mini_batches": AT_LEAST_1,
     "train.max_grad_norm": POSITIVE, "train.init_action_std": POSITIVE, "train.torch_threads": AT_LEAST_0,
-    "train.teacher_weight": AT_LEAST_0, "train.action_bound_coef": AT_LEAST_0,
+    "train.teacher_weight": AT_LEAST_0, "train.critic_warmup_iterations": AT_LEAST_0,
+    "train.critic_warmup_learning_rate": POSITIVE, "train.action_bound_coef": AT_LEAST_0,
     "train.stages.pretrain": AT_LEAST_0, "train.stages.fusion": AT_LEAST_0, "train.stages.joint": AT_LEAST_0,
     "train.amp.task_reward_weight": AT_LEAST_0, "train.amp.style_reward_weight": AT_LEAST_0,
     "train.amp.grad_penalty": AT_LEAST_0, "train.amp.logit_reg": AT_LEAST_0, "train.amp.weight_decay": AT_LEAST_0,

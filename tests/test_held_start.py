@@ -16,14 +16,14 @@ from detach.torch_math import heading_matrix, point_box_distance, yaw_of
 from detach.character.body import START_HEIGHT
 from detach.config import resolve
 from detach.envs.lh_env import make_env
-from detach.skills.carry import APPROACH_RANGE, LIFT, box_lifted, hands_on_box, walk_to_box
+from detach.skills.carry import APPROACH_RANGE, GRASP_LIFT, LIFT, box_lifted, hands_on_box, walk_to_box
 
 ROOT = Path(__file__).resolve().parents[1]
 CARRY = ROOT / "configs/tasks/carry.yaml"
 
 
-def _env(prob: float, eval_mode: bool = False, n: int = 16):
-    cfg = resolve(CARRY, "mlp", ["env.character=puppet", f"env.mid_task_init_prob={prob}"])
+def _env(prob: float, eval_mode: bool = False, n: int = 16, extra: tuple[str, ...] = ()):
+    cfg = resolve(CARRY, "mlp", ["env.character=puppet", f"env.mid_task_init_prob={prob}", *extra])
     return make_env(cfg, num_envs=n, verbose=False, eval_mode=eval_mode)
 
 
@@ -180,6 +180,28 @@ def test_carrying_the_box_toward_its_destination_pays_at_any_distance() -> None:
     assert bool((to[sel] > still[sel] + 0.05).all()) and bool((still[sel] > away[sel]).all())
     sel = ~lifted & far
     assert torch.allclose(to[sel], still[sel])
+
+
+def test_the_opt_in_lift_term_pays_the_height_above_rest_up_to_a_grasp() -> None:
+    """`carry/box_lift` (weight 0 unless set): the box's rise as a share of `GRASP_LIFT`, so the
+    last centimetres to a grasp pay as much as the first; 1 at the destination (setting the box
+    down there costs nothing)."""
+    off = _env(1.0, n=2)
+    assert "carry/box_lift" not in off.rewards.compute(off.context())[1]
+    env = _env(1.0, n=32, extra=("+rewards.terms.carry/box_lift=0.3",))
+    ctx = env.context()
+    away = (ctx.obj_pos[:, :2] - ctx.target[:, :2]).norm(dim=-1) > 0.5
+    assert int(away.sum()) >= 16
+
+    def paid(rise: torch.Tensor) -> torch.Tensor:
+        ctx.obj_pos = torch.cat((ctx.obj_pos[:, :2], (ctx.obj_rest_z + rise)[:, None]), -1)
+        return env.rewards.compute(ctx)[1]["carry/box_lift"]
+
+    assert torch.allclose(paid(torch.full((32,), 0.5 * GRASP_LIFT))[away], torch.full((32,), 0.5)[away])
+    assert torch.allclose(paid(torch.full((32,), LIFT)), torch.ones(32))
+    assert torch.allclose(paid(torch.zeros(32))[away], torch.zeros(32)[away])
+    ctx.obj_pos = ctx.target.clone()  # set down at the destination
+    assert torch.allclose(env.rewards.compute(ctx)[1]["carry/box_lift"], torch.ones(32))
 
 
 def test_carry_shows_the_box_as_its_target_until_it_is_carried_then_where_to_stand_to_set_it_down() -> None:

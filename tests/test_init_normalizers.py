@@ -161,7 +161,8 @@ def test_merged_statistics_keep_what_the_policy_learned_from_and_take_the_rest_f
 def test_a_later_stage_can_start_the_grasp_at_a_chosen_mean(follow_run: Path, tmp_path: Path, model: str,
                                                         capsys: pytest.CaptureFixture[str]) -> None:
     """Follow has nothing to hold, so its policy's grasp mean is whatever PPO's noise left: in
-    one Follow cell -0.6 at the box, where Carry's exploration never asked for a grasp."""
+    one Follow cell -0.6 at the box, where Carry's exploration never asked for a grasp. The
+    puppet's height target below standing is carried by its legs, so Follow leaves it drifting too."""
     source = follow_run
     if model != "mlp":
         out = tmp_path / "follow"
@@ -170,21 +171,23 @@ def test_a_later_stage_can_start_the_grasp_at_a_chosen_mean(follow_run: Path, tm
         (run,) = find_runs(out)
         source = run.path
     cfg = complete_run_config(resolve(ROOT / "configs/tasks/carry.yaml", model, TINY + [
-        f"train.init_from={source}", "train.init_action_mean={grasp: 0.1}"]))
+        f"train.init_from={source}", "train.init_action_mean={grasp: 0.1, height: -0.05}"]))
     env, runner = build_runner(cfg, None, "cpu", progress=False)
     layers = [m for m in runner.alg.actor.mlp.modules() if isinstance(m, torch.nn.Linear)]
     saved = torch.load(sorted((source / "checkpoints").glob("model_*.pt"))[-1], weights_only=True)
-    grasp = env.num_actions - 1
-    assert "grasp mean 0.1 in every state" in load_initial_weights(runner, cfg)
+    grasp, height = env.num_actions - 1, env.num_actions - 2
+    said = load_initial_weights(runner, cfg)
+    assert "grasp mean 0.1 in every state" in said and "height mean -0.05 in every state" in said
     actor = runner.alg.actor
     obs = env.get_observations()
     with torch.no_grad():
         mean = actor(obs)
     torch.testing.assert_close(mean[:, grasp], torch.full_like(mean[:, grasp], 0.1))
-    assert mean[:, :grasp].std(0).max() > 0  # the other actions still depend on the state
+    torch.testing.assert_close(mean[:, height], torch.full_like(mean[:, height], -0.05))
+    assert mean[:, :height].std(0).max() > 0  # the other actions still depend on the state
     out_weight = layers[-1].weight
     key = next(k for k, v in saved["actor_state_dict"].items() if k.startswith("mlp.") and v.shape == out_weight.shape)
-    torch.testing.assert_close(out_weight[:grasp], saved["actor_state_dict"][key][:grasp])  # the rest as loaded
+    torch.testing.assert_close(out_weight[:height], saved["actor_state_dict"][key][:height])  # the rest as loaded
     # a name the character does not have, or no policy to start from: one-line errors, nothing written
     for bad, words in (([f"train.init_from={source}", "+train.init_action_mean.grip=0.1"], "found 'grip'"),
                        ([f"train.init_from={source}", "+train.init_action_mean.grasp=2"], "in [-1, 1]"),
@@ -195,3 +198,27 @@ def test_a_later_stage_can_start_the_grasp_at_a_chosen_mean(follow_run: Path, tm
         err = capsys.readouterr().err
         assert "train.init_action_mean" in err and words in err, err
     assert not (tmp_path / "runs").exists()
+
+
+def test_a_critic_warmup_trains_the_critic_alone_first(follow_run: Path) -> None:
+    """`train.critic_warmup_iterations`: a stage started from another task's run fits its
+    critic to the new rewards (at its own learning rate) before PPO moves the policy."""
+    cfg = complete_run_config(resolve(ROOT / "configs/tasks/carry.yaml", "mlp", TINY + [
+        f"train.init_from={follow_run}", "train.critic_warmup_iterations=1", "train.max_iterations=2",
+        "train.learning_rate=1.0e-5", "train.critic_warmup_learning_rate=1.0e-2"]))
+    _env, runner = build_runner(cfg, None, "cpu", progress=False)
+    load_initial_weights(runner, cfg)
+    alg = runner.alg
+
+    def params(module: torch.nn.Module) -> dict[str, torch.Tensor]:
+        return {k: v.detach().clone() for k, v in module.named_parameters()}
+
+    actor0, critic0 = params(alg.actor), params(alg.critic)
+    runner.learn(1)  # iteration 0: the critic alone
+    actor1, critic1 = params(alg.actor), params(alg.critic)
+    assert all(torch.equal(actor0[k], actor1[k]) for k in actor0)
+    assert max(float((critic1[k] - critic0[k]).abs().max()) for k in critic0) > 1e-3  # at 1e-2, not 1e-5
+    assert alg.learning_rate == 1.0e-5 and all(g["lr"] == 1.0e-5 for g in alg.optimizer.param_groups)
+    assert all(p.requires_grad for p in alg.actor.parameters())
+    runner.learn(2)  # iteration 1: PPO as usual
+    assert any(not torch.equal(actor1[k], v) for k, v in params(alg.actor).items())

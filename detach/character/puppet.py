@@ -49,6 +49,7 @@ ROOT_JOINTS: tuple[str, ...] = ("root_x", "root_y", "root_z", "root_yaw")
 ROOT_ACTUATORS: tuple[str, ...] = ("root_vx", "root_vy", "root_z", "root_wz")
 NUM_ACTIONS = 37
 GRASP_ACTION = NUM_ACTIONS - 1
+HEIGHT_ACTION = 35
 ROOT_LIN_SPEED = 2.0
 ROOT_YAW_RATE = 3.0
 ROOT_HEIGHT_SCALE = 1.6
@@ -70,7 +71,7 @@ def root_ctrl(actions: torch.Tensor, yaw: torch.Tensor) -> torch.Tensor:
     fwd, left = a[:, 32] * ROOT_LIN_SPEED, a[:, 33] * ROOT_LIN_SPEED
     c, s = torch.cos(yaw), torch.sin(yaw)
     vx, vy = c * fwd - s * left, s * fwd + c * left
-    z = (START_HEIGHT + ROOT_HEIGHT_SCALE * a[:, 35]).clamp(*ROOT_HEIGHT_RANGE)
+    z = (START_HEIGHT + ROOT_HEIGHT_SCALE * a[:, HEIGHT_ACTION]).clamp(*ROOT_HEIGHT_RANGE)
     wz = a[:, 34] * ROOT_YAW_RATE
     return torch.stack((vx, vy, z, wz), dim=-1)
 
@@ -104,7 +105,11 @@ class Puppet(Character):
     regulariser, would only teach it to freeze."""
     scriptable = True
     can_hold = True
-    named_actions = {"grasp": GRASP_ACTION}
+    named_actions = {"grasp": GRASP_ACTION, "height": HEIGHT_ACTION}
+    """Actions a task may never exercise, so a later stage may start them at a set mean
+    (`train.init_action_mean`): the grasp holds nothing in Follow, and a height target below
+    the standing height is carried by the legs, so Follow leaves both means where PPO's noise
+    drifted them."""
 
     # ------------------------------------------------------------------ building
     def add_root(self, pelvis: mujoco.MjsBody) -> None:
@@ -237,6 +242,6 @@ class Puppet(Character):
         a[:, 32] = (c * v[:, 0] + s * v[:, 1]) / ROOT_LIN_SPEED
         a[:, 33] = (-s * v[:, 0] + c * v[:, 1]) / ROOT_LIN_SPEED
         a[:, 34] = (5.0 * wrap_angle(cmd.yaw_target - cmd.yaw)).clamp(-ROOT_YAW_RATE, ROOT_YAW_RATE) / ROOT_YAW_RATE
-        a[:, 35] = height_to_action(cmd.height)
+        a[:, HEIGHT_ACTION] = height_to_action(cmd.height)
         a[:, 36] = cmd.grasp
         return a.clamp(-1.0, 1.0)

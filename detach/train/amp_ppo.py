@@ -85,6 +85,12 @@ class AmpPPO(PPO):
         """Losses on the student's mean action (teachers, action bound), minimised after PPO's update."""
         self.teacher_only = False
         """Distillation: the teachers' loss alone trains the policy (PPO collects, no PPO update)."""
+        self.critic_warmup_iterations = 0
+        """The run's first iterations train the critic alone (`train.critic_warmup_iterations`)."""
+        self.critic_warmup_left = 0
+        """Of those, the updates still to come (set when training starts or resumes)."""
+        self.critic_warmup_lr = 1.0e-3
+        """Their learning rate (`train.critic_warmup_learning_rate`)."""
         self.stage = "ppo"
         heads = tuple(getattr(critic, "value_objectives", ()) or ())
         self.num_objectives = len(heads) if heads else int(getattr(critic, "num_objectives", 1))
@@ -194,16 +200,20 @@ class AmpPPO(PPO):
     # ------------------------------------------------------------------ learning
     def update(self) -> dict[str, float]:
         obs = self.storage.observations.flatten(0, 1)
+        warmup = self.critic_warmup_left > 0 and self.stage != "pretrain" and not self.teacher_only
         if self.stage == "pretrain" or self.teacher_only:
             self.storage.clear()
             losses: dict[str, float] = {}
+        elif warmup:
+            self.critic_warmup_left -= 1
+            losses = self._update_critic_alone()
         else:
             losses = super().update()
         if self.amp_enabled:
             losses.update(self._update_discriminators())
-        if self.aux_loss_fn is not None:
+        if self.aux_loss_fn is not None and not warmup:
             losses.update(self._update_aux(obs))
-        if self.policy_loss_fn is not None and self.stage != "pretrain":
+        if self.policy_loss_fn is not None and self.stage != "pretrain" and not warmup:
             losses.update(self._minimise(self.policy_loss_fn, obs, self.num_learning_epochs))
         count = max(self._reward_sums["count"], 1)
         losses["reward_task"] = self._reward_sums["task"] / count
@@ -211,6 +221,32 @@ class AmpPPO(PPO):
             losses["reward_style"] = self._reward_sums["style"] / count
         self._reward_sums = {"task": 0.0, "style": 0.0, "count": 0}
         return losses
+
+    def _update_critic_alone(self) -> dict[str, float]:
+        """PPO's update with every parameter of the policy frozen (a trunk it shares with the
+        critic included) at the warm-up learning rate and without the value clip: only the
+        critic's own layers learn, as far as the new returns ask. The adaptive schedule sees a KL
+        of 0 and keeps the rate; the stage's rate and clip are restored after."""
+        frozen = [p for p in self.actor.parameters() if p.requires_grad]
+        rate, clipped = self.learning_rate, self.use_clipped_value_loss
+        for p in frozen:
+            p.requires_grad_(False)
+        self._set_learning_rate(self.critic_warmup_lr)
+        self.use_clipped_value_loss = False  # the clip holds each update within 0.2 of the rollout's values
+        try:
+            losses = super().update()
+        finally:
+            for p in frozen:
+                p.requires_grad_(True)
+            self._set_learning_rate(rate)
+            self.use_clipped_value_loss = clipped
+        losses["critic_warmup"] = 1.0
+        return losses
+
+    def _set_learning_rate(self, rate: float) -> None:
+        self.learning_rate = rate
+        for group in self.optimizer.param_groups:
+            group["lr"] = rate
 
     def _update_discriminators(self) -> dict[str, float]:
         if not self._rollout_amp:

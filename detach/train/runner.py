@@ -252,6 +252,7 @@ class DetachRunner(OnPolicyRunner):
     def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False) -> None:
         """Run iterations completed_iteration+1 .. num_learning_iterations-1 (absolute)."""
         start = self.completed_iteration + 1
+        self.alg.critic_warmup_left = max(0, getattr(self.alg, "critic_warmup_iterations", 0) - start)
         if self.is_distributed:  # torchrun: rank 0's weights, loaded or resumed after __init__'s broadcast
             self.alg.broadcast_parameters()
         if init_at_random_ep_len:  # new or resumed, the env was just built: all episodes at step 0

@@ -128,6 +128,8 @@ def build_runner(cfg: RunConfig, checkpoint_dir: Path | None, device: str, log: 
         alg.reference_sampler = amp_reference_sampler(
             lib, cfg.env.amp_obs_steps, env.dt, cfg.env.task_specific_discrimination, device,
             plan=[canonical_name(s) for s in cfg.task.plan], weights=cfg.train.amp.skill_weights)
+    alg.critic_warmup_iterations = cfg.train.critic_warmup_iterations
+    alg.critic_warmup_lr = cfg.train.critic_warmup_learning_rate
     on_stage, detach_models = _stage_hook(runner)
     runner.on_stage = on_stage
     if detach_models:
