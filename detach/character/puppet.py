@@ -243,5 +243,5 @@ class Puppet(Character):
         a[:, 33] = (-s * v[:, 0] + c * v[:, 1]) / ROOT_LIN_SPEED
         a[:, 34] = (5.0 * wrap_angle(cmd.yaw_target - cmd.yaw)).clamp(-ROOT_YAW_RATE, ROOT_YAW_RATE) / ROOT_YAW_RATE
         a[:, HEIGHT_ACTION] = height_to_action(cmd.height)
-        a[:, 36] = cmd.grasp
+        a[:, GRASP_ACTION] = cmd.grasp
         return a.clamp(-1.0, 1.0)
