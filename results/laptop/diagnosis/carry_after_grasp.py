@@ -3,7 +3,10 @@
 box then (a delivered box ends its episode, so these are the deliveries that have not
 happened), quartiles of the pelvis's distance to the place it is shown to walk to
 (`Carry.goal`), of the box's 3-D distance to its destination (success: under
-`env.success_threshold`), of the box's height above the destination, and of the pelvis's speed.
+`env.success_threshold`), of the box's height above the destination, and of the pelvis's speed;
+and, over every step an env held the box more than 0.5 m from its goal, quartiles of the cosine
+between the velocity the puppet's root actions ask for (actions 32-33, heading frame) and the
+direction to the goal (1: walking the box straight to it).
 
     python results/laptop/diagnosis/carry_after_grasp.py RUN_DIR CHECKPOINT.pt
 """
@@ -16,6 +19,7 @@ from detach.envs.lh_env import make_env
 from detach.runs.folder import RunFolder
 from detach.runs.policy import load_policy
 from detach.runs.session import eval_config
+from detach.torch_math import yaw_of
 from detach.train.setup import seed_everything
 
 ENVS, STEPS = 48, 400
@@ -26,9 +30,18 @@ seed_everything(1)
 env = make_env(cfg, num_envs=ENVS, device="cpu", eval_mode=True)
 actor, _ = load_policy(cfg, env, Path(sys.argv[2]))
 obs = env.get_observations()
+aims = []
 with torch.no_grad():
     for _ in range(STEPS):
-        obs, *_ = env.step(actor(obs))
+        actions = actor(obs)
+        ctx = env.context()
+        to_goal = ctx.goal[:, :2] - ctx.state.root_pos[:, :2]
+        yaw = yaw_of(ctx.state.root_quat)
+        fwd, left = actions[:, 32], actions[:, 33]
+        asked = torch.stack((fwd * yaw.cos() - left * yaw.sin(), fwd * yaw.sin() + left * yaw.cos()), -1)
+        far = (env.character.grasp_obj >= 0) & (to_goal.norm(dim=-1) > 0.5)
+        aims.append(torch.nn.functional.cosine_similarity(asked[far], to_goal[far], dim=-1))
+        obs, *_ = env.step(actions)
 ctx = env.context()
 held = env.character.grasp_obj >= 0
 
@@ -42,4 +55,5 @@ print(f"{Path(sys.argv[2]).name} of {run.path.name}: holding at {STEPS * env.dt:
       f"box to destination (m) {quartiles((ctx.obj_pos[held] - ctx.target[held]).norm(dim=-1))}; "
       f"box above destination (m) {quartiles(ctx.obj_pos[held, 2] - ctx.target[held, 2])}; "
       f"pelvis speed (m/s) {quartiles(ctx.state.body_lin[held, 0, :2].norm(dim=-1))}; "
-      f"success threshold {cfg.env.success_threshold} m")
+      f"success threshold {cfg.env.success_threshold} m; asked velocity vs goal direction (cos), held and "
+      f"> 0.5 m from it: {quartiles(torch.cat(aims))}")
