@@ -16,6 +16,7 @@ import pytest
 import torch
 
 from detach import cli
+from detach.character.body import DOF_NAMES
 from detach.config import resolve
 from detach.runs.folder import find_runs
 from detach.train.checks import complete_run_config
@@ -162,7 +163,8 @@ def test_a_later_stage_can_start_the_grasp_at_a_chosen_mean(follow_run: Path, tm
                                                         capsys: pytest.CaptureFixture[str]) -> None:
     """Follow has nothing to hold, so its policy's grasp mean is whatever PPO's noise left: in
     one Follow cell -0.6 at the box, where Carry's exploration never asked for a grasp. The
-    puppet's height target below standing is carried by its legs, so Follow leaves it drifting too."""
+    puppet's height target below standing is carried by its legs, and its hinges move nothing Follow
+    pays for, so Follow leaves them drifting too; each is named (`Puppet.named_actions`)."""
     source = follow_run
     if model != "mlp":
         out = tmp_path / "follow"
@@ -171,23 +173,26 @@ def test_a_later_stage_can_start_the_grasp_at_a_chosen_mean(follow_run: Path, tm
         (run,) = find_runs(out)
         source = run.path
     cfg = complete_run_config(resolve(ROOT / "configs/tasks/carry.yaml", model, TINY + [
-        f"train.init_from={source}", "train.init_action_mean={grasp: 0.1, height: -0.05}"]))
+        f"train.init_from={source}", "train.init_action_mean={grasp: 0.1, height: -0.05, abdomen_y: 0.5}"]))
     env, runner = build_runner(cfg, None, "cpu", progress=False)
     layers = [m for m in runner.alg.actor.mlp.modules() if isinstance(m, torch.nn.Linear)]
     saved = torch.load(sorted((source / "checkpoints").glob("model_*.pt"))[-1], weights_only=True)
-    grasp, height = env.num_actions - 1, env.num_actions - 2
+    grasp, height, abdomen = env.num_actions - 1, env.num_actions - 2, DOF_NAMES.index("abdomen_y")
     said = load_initial_weights(runner, cfg)
     assert "grasp mean 0.1 in every state" in said and "height mean -0.05 in every state" in said
+    assert "abdomen_y mean 0.5 in every state" in said
     actor = runner.alg.actor
     obs = env.get_observations()
     with torch.no_grad():
         mean = actor(obs)
     torch.testing.assert_close(mean[:, grasp], torch.full_like(mean[:, grasp], 0.1))
     torch.testing.assert_close(mean[:, height], torch.full_like(mean[:, height], -0.05))
-    assert mean[:, :height].std(0).max() > 0  # the other actions still depend on the state
+    torch.testing.assert_close(mean[:, abdomen], torch.full_like(mean[:, abdomen], 0.5))
+    rest = [a for a in range(height) if a != abdomen]
+    assert mean[:, rest].std(0).max() > 0  # the other actions still depend on the state
     out_weight = layers[-1].weight
     key = next(k for k, v in saved["actor_state_dict"].items() if k.startswith("mlp.") and v.shape == out_weight.shape)
-    torch.testing.assert_close(out_weight[:height], saved["actor_state_dict"][key][:height])  # the rest as loaded
+    torch.testing.assert_close(out_weight[rest], saved["actor_state_dict"][key][rest])  # the rest as loaded
     # a name the character does not have, or no policy to start from: one-line errors, nothing written
     for bad, words in (([f"train.init_from={source}", "+train.init_action_mean.grip=0.1"], "found 'grip'"),
                        ([f"train.init_from={source}", "+train.init_action_mean.grasp=2"], "in [-1, 1]"),

@@ -1,10 +1,12 @@
 """Where does a Carry policy take the box once it holds it? Runs the evaluation's default starts
-(48 envs, mean actions) for 400 control steps (13 s) and prints, over the envs still holding the
-box then (a delivered box ends its episode, so these are the deliveries that have not
-happened), quartiles of the pelvis's distance to the place it is shown to walk to
+(48 envs, mean actions) for 400 control steps (13 s), following each env's first episode only
+(an episode ends when its box is delivered, and the env then starts another), and prints,
+over the envs still in their first episode and holding the box at the end (the deliveries
+that have not happened), quartiles of the pelvis's distance to the place it is shown to walk to
 (`Carry.goal`), of the box's 3-D distance to its destination (success: under
 `env.success_threshold`), of the box's height above the destination, and of the pelvis's speed;
-and, over every step an env held the box more than 0.5 m from its goal, quartiles of the cosine
+and, over every step an env held the box more than 0.5 m from its goal in its first
+episode, quartiles of the cosine
 between the velocity the puppet's root actions ask for (actions 32-33, heading frame) and the
 direction to the goal (1: walking the box straight to it).
 
@@ -14,23 +16,16 @@ import sys
 from pathlib import Path
 
 import torch
+from eval_rollout import eval_env_and_policy, quartiles
 
-from detach.envs.lh_env import make_env
-from detach.runs.folder import RunFolder
-from detach.runs.policy import load_policy
-from detach.runs.session import eval_config
 from detach.torch_math import yaw_of
-from detach.train.setup import seed_everything
 
 ENVS, STEPS = 48, 400
 
-run = RunFolder(Path(sys.argv[1]))
-cfg = eval_config(run.config(), None)
-seed_everything(1)
-env = make_env(cfg, num_envs=ENVS, device="cpu", eval_mode=True)
-actor, _ = load_policy(cfg, env, Path(sys.argv[2]))
+run, cfg, env, actor = eval_env_and_policy(sys.argv[1], sys.argv[2], ENVS)
 obs = env.get_observations()
 aims = []
+first = torch.ones(ENVS, dtype=torch.bool)
 with torch.no_grad():
     for _ in range(STEPS):
         actions = actor(obs)
@@ -39,18 +34,16 @@ with torch.no_grad():
         yaw = yaw_of(ctx.state.root_quat)
         fwd, left = actions[:, 32], actions[:, 33]
         asked = torch.stack((fwd * yaw.cos() - left * yaw.sin(), fwd * yaw.sin() + left * yaw.cos()), -1)
-        far = (env.character.grasp_obj >= 0) & (to_goal.norm(dim=-1) > 0.5)
+        far = first & (env.character.grasp_obj >= 0) & (to_goal.norm(dim=-1) > 0.5)
         aims.append(torch.nn.functional.cosine_similarity(asked[far], to_goal[far], dim=-1))
-        obs, *_ = env.step(actions)
+        obs, _rewards, dones, _extras = env.step(actions)
+        first &= ~dones.bool()
 ctx = env.context()
-held = env.character.grasp_obj >= 0
+held = first & (env.character.grasp_obj >= 0)
 
 
-def quartiles(x: torch.Tensor) -> str:
-    return " / ".join(f"{v:.2f}" for v in torch.quantile(x, torch.tensor([0.25, 0.5, 0.75])).tolist())
-
-
-print(f"{Path(sys.argv[2]).name} of {run.path.name}: holding at {STEPS * env.dt:.1f} s: {held.float().mean():.2f}; "
+print(f"{Path(sys.argv[2]).name} of {run.path.name}: first episode ended by {STEPS * env.dt:.1f} s: "
+      f"{(~first).float().mean():.2f}; still in it and holding: {held.float().mean():.2f}; "
       f"pelvis to goal (m) {quartiles((ctx.state.root_pos[held, :2] - ctx.goal[held, :2]).norm(dim=-1))}; "
       f"box to destination (m) {quartiles((ctx.obj_pos[held] - ctx.target[held]).norm(dim=-1))}; "
       f"box above destination (m) {quartiles(ctx.obj_pos[held, 2] - ctx.target[held, 2])}; "

@@ -12,22 +12,14 @@ import sys
 from pathlib import Path
 
 import torch
+from eval_rollout import eval_env_and_policy, quartiles
 
-from detach.envs.lh_env import make_env
-from detach.runs.folder import RunFolder
-from detach.runs.policy import load_policy
-from detach.runs.session import eval_config
 from detach.skills.carry import HAND_IDS
 from detach.torch_math import point_box_distance, wrap_angle, yaw_of
-from detach.train.setup import seed_everything
 
 ENVS, STEPS, NEAR_BOX = 48, 300, 0.6
 
-run = RunFolder(Path(sys.argv[1]))
-cfg = eval_config(run.config(), None)
-seed_everything(1)
-env = make_env(cfg, num_envs=ENVS, device="cpu", eval_mode=True)
-actor, _ = load_policy(cfg, env, Path(sys.argv[2]))
+run, cfg, env, actor = eval_env_and_policy(sys.argv[1], sys.argv[2], ENVS)
 obs = env.get_observations()
 yaw_err, hand_d, pelvis_d = [], [], []
 reached = torch.zeros(ENVS, dtype=torch.bool)
@@ -49,10 +41,6 @@ with torch.no_grad():
             hand_d.append(h[at])
             pelvis_d.append(d[at])
 ye, hd, pd = torch.cat(yaw_err) * 180 / math.pi, torch.cat(hand_d), torch.cat(pelvis_d)
-
-
-def quartiles(x: torch.Tensor) -> str:
-    return " / ".join(f"{v:.2f}" for v in torch.quantile(x, torch.tensor([0.25, 0.5, 0.75])).tolist())
 
 
 print(f"{Path(sys.argv[2]).name} of {run.path.name}: {len(ye)} samples at the box, nothing held; "
