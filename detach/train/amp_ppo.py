@@ -200,11 +200,12 @@ class AmpPPO(PPO):
     # ------------------------------------------------------------------ learning
     def update(self) -> dict[str, float]:
         obs = self.storage.observations.flatten(0, 1)
-        warmup = self.critic_warmup_left > 0 and self.stage != "pretrain" and not self.teacher_only
+        warmup = False
         if self.stage == "pretrain" or self.teacher_only:
             self.storage.clear()
             losses: dict[str, float] = {}
-        elif warmup:
+        elif self.critic_warmup_left > 0:
+            warmup = True
             self.critic_warmup_left -= 1
             losses = self._update_critic_alone()
         else:
