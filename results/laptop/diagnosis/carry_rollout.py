@@ -8,20 +8,12 @@ every 60 control steps of 8 s (16 envs, mean actions), per checkpoint.
 import sys
 import torch
 from pathlib import Path
-from detach.runs.folder import RunFolder
-from detach.runs.session import eval_config
-from detach.envs.lh_env import make_env
-from detach.runs.policy import load_policy
-from detach.train.setup import seed_everything
+from eval_rollout import eval_env_and_policy
 from detach.skills.carry import HAND_IDS, box_lifted
 from detach.torch_math import point_box_distance
 
-run = RunFolder(Path(sys.argv[1]))
-cfg = eval_config(run.config(), None)
 for name in sys.argv[2:]:
-    seed_everything(1)
-    env = make_env(cfg, num_envs=16, device="cpu", eval_mode=True)
-    actor, _ = load_policy(cfg, env, Path(name))
+    _run, _cfg, env, actor = eval_env_and_policy(sys.argv[1], name, 16)
     obs = env.get_observations()
     rows = []
     with torch.no_grad():
