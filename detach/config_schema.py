@@ -93,6 +93,11 @@ class SimCfg:
     cuda_graph: bool = True
     """warp on a CUDA device: replay each control step's launches as one CUDA graph (false:
     launch them one by one, slower; for debugging a capture)."""
+    compile: bool = False
+    """Run the env's own per-step tensor work (targets, rewards, transitions, observations) as
+    a few `torch.compile` graphs instead of ~800 small eager ops (`LHEnv`). Same results;
+    the first env of a process compiles for ~1-3 minutes (seconds from the cache torch keeps
+    under /tmp). Needs a C++ compiler on a CPU, Triton on a GPU."""
 
 
 @dataclass(frozen=True)

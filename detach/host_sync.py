@@ -7,6 +7,8 @@ saves time. `may_any(mask)` answers "must the work guarded by this mask run?": e
 tensors, and True without reading on an accelerator, where the guarded work is written so that
 an all-false mask changes nothing. `deferred_reads()` gives CPU tensors the accelerator's answer,
 so a test on a CPU can check that the step makes no other host read (tests/test_host_sync.py).
+Code traced by `torch.compile` (`sim.compile`) gets the accelerator's answer too: a read there
+would split the compiled graph in two.
 """
 
 from __future__ import annotations
@@ -22,8 +24,8 @@ _DEFERRED: ContextVar[bool] = ContextVar("detach_deferred_host_reads", default=F
 
 def reads_are_free(t: torch.Tensor) -> bool:
     """Whether reading t's values on the host costs no synchronisation (a CPU tensor, outside
-    `deferred_reads`)."""
-    return t.device.type == "cpu" and not _DEFERRED.get()
+    `deferred_reads` and outside code that `torch.compile` traces)."""
+    return not torch.compiler.is_compiling() and t.device.type == "cpu" and not _DEFERRED.get()
 
 
 def may_any(mask: torch.Tensor) -> bool:

@@ -6,17 +6,22 @@ so that observations do not depend on where the character looks in the world.
 
 from __future__ import annotations
 
-import functools
 import math
 
 import torch
 
 
-@functools.cache
+_INDICES: dict[tuple[tuple[int, ...], torch.device], torch.Tensor] = {}
+
+
 def index_on(ids: tuple[int, ...], device: torch.device) -> torch.Tensor:
     """ids as a long tensor on device, made once per device: a Python list as an index is
-    copied to the device on every use, and on an accelerator that copy waits for its queue."""
-    return torch.tensor(ids, dtype=torch.long, device=device)
+    copied to the device on every use, and on an accelerator that copy waits for its queue.
+    A plain dict, not `functools.cache`, which `torch.compile` would trace through."""
+    out = _INDICES.get((ids, device))
+    if out is None:
+        out = _INDICES[(ids, device)] = torch.tensor(ids, dtype=torch.long, device=device)
+    return out
 
 
 def quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:

@@ -113,6 +113,10 @@ class LHEnv(VecEnv):
                                                self.index.key.tolist(), self.index.dyn, self.index.obj_half,
                                                self.device)
         self.obs_spec = self.observations.spec
+        step_fn = _compiled if sc.compile else (lambda fn: fn)
+        self._judge, self._context, self._observe = (step_fn(self._judge_step), step_fn(self.context),
+                                                     step_fn(self._observe_step))
+        """The step's three groups of tensor work, as `torch.compile` graphs where `sim.compile`."""
         self._oracle: Oracle | None = None
         """Set by `provide_oracle_actions`: the scripted oracle whose action every observation carries."""
         self.episode_length_buf = torch.zeros(self.num_envs, dtype=torch.long, device=self.device)
@@ -120,6 +124,9 @@ class LHEnv(VecEnv):
         """Control steps since the episode started (episode_length_buf may be randomised by a runner)."""
         if verbose:
             print(self.describe())
+            if sc.compile:
+                print("sim.compile: compiling the env step's three graphs at the first reset and step "
+                      "(~1-3 minutes in a fresh process; seconds from torch's cache)", flush=True)
         self.reset()
 
     def describe(self) -> str:
@@ -140,9 +147,30 @@ class LHEnv(VecEnv):
         a = actions.to(self.device, torch.float32).clamp(-1.0, 1.0)
         self.character.pre_step(a, self.state, self.tracker.may_hold())
         self.backend.step(self.character.controls(a, self.backend.qpos), self.substeps)
+        ctx, rew, dones, time_outs, ended, log = self._judge(self._read())
+        extras: dict = {"time_outs": time_outs, "log": log}
+        # The step's one host read, as in IsaacLab's and mjlab's envs: which episodes ended.
+        ids = dones.nonzero(as_tuple=False).squeeze(-1)
+        if len(ids):
+            prog = self.tracker.progress()
+            prog.update(ended, length=self.steps.clone())
+            extras["episode_progress"] = prog
+            extras["log"].update(self.tracker.episode_log(prog, ids, self.terminations.names,
+                                                          ~self.started_mid_task[ids]))
+            self._reset_envs(ids)
+        if len(ids) or may_any(self.tracker.advanced):  # targets changed since the reward: recompute them
+            ctx = self._context(self._read() if len(ids) else ctx.state)
+        self.obs = self._observe(ctx, dones)
+        return self.obs, rew, dones, extras
+
+    def _judge_step(self, state: SimState) -> tuple[SkillContext, torch.Tensor, torch.Tensor, torch.Tensor,
+                                                     dict[str, torch.Tensor], dict[str, torch.Tensor]]:
+        """Everything between physics and the step's host read, on the new state: the clocks,
+        targets, reward, terminations and transitions. Returns (context, reward, dones,
+        time_outs, terminations by name, reward log). No host read (`sim.compile` traces it)."""
         self.episode_length_buf += 1
         self.steps += 1
-        ctx = self.context(self._read())
+        ctx = self.context(state)
         rew, parts = self.rewards.compute(ctx)
         ended = self.terminations.compute(ctx)
         last_done = self.tracker.advance(ctx, self.steps)
@@ -155,21 +183,8 @@ class LHEnv(VecEnv):
         terminated = torch.stack(list(ended.values())).any(dim=0)
         timeout = self.episode_length_buf >= self.max_episode_length
         time_outs = (timeout | self.terminations.last_subtask_ends(last_done)) & ~terminated
-        dones = terminated | time_outs
-        extras: dict = {"time_outs": time_outs, "log": {f"Episode_Reward/{k}": v.nanmean() for k, v in parts.items()}}
-        # The step's one host read, as in IsaacLab's and mjlab's envs: which episodes ended.
-        ids = dones.nonzero(as_tuple=False).squeeze(-1)
-        if len(ids):
-            prog = self.tracker.progress()
-            prog.update(ended, length=self.steps.clone())
-            extras["episode_progress"] = prog
-            extras["log"].update(self.tracker.episode_log(prog, ids, self.terminations.names,
-                                                          ~self.started_mid_task[ids]))
-            self._reset_envs(ids)
-        if len(ids) or may_any(self.tracker.advanced):  # targets changed since the reward: recompute them
-            ctx = self.context(self._read() if len(ids) else ctx.state)
-        self.obs = self._observe(ctx, ids)
-        return self.obs, rew, dones, extras
+        log = {f"Episode_Reward/{k}": v.nanmean() for k, v in parts.items()}
+        return ctx, rew, terminated | time_outs, time_outs, ended, log
 
     # ---------------------------------------------------------------------------- state
     def _read(self) -> SimState:
@@ -181,10 +196,11 @@ class LHEnv(VecEnv):
         return self.tracker.context(self.state if state is None else state, self.steps,
                                     self.character.held_object(), self.character.joint_power_weight)
 
-    def _observe(self, ctx: SkillContext, reset_ids: torch.Tensor) -> TensorDict:
+    def _observe_step(self, ctx: SkillContext, reset: torch.Tensor) -> TensorDict:
+        """Observations of ctx; the envs in reset [N] (bool) start their histories afresh."""
         ahead = self.services.trajectory.reference(self.steps, self.observations.sample_times)
         t = self.tracker
-        obs = self.observations.build(ctx, reset_ids, ahead, t.follows_path[ctx.skill],
+        obs = self.observations.build(ctx, reset, ahead, t.follows_path[ctx.skill],
                                       t.hold.float() / self.max_transition_steps,
                                       t.subtask.float() / t.num_subtasks)
         if self._oracle is not None:
@@ -288,7 +304,8 @@ class LHEnv(VecEnv):
         """Start new episodes in envs ids (all by default); returns the observations."""
         ids = torch.arange(self.num_envs, device=self.device) if ids is None else ids
         self._reset_envs(ids)
-        self.obs = self._observe(self.context(self._read()), ids)
+        every = torch.ones_like(ids, dtype=torch.bool)
+        self.obs = self._observe(self._context(self._read()), rows_at(self.num_envs, ids, every, False))
         return self.obs
 
     def set_reference_sampler(self, fn: ReferenceSampler) -> None:
@@ -305,6 +322,11 @@ class LHEnv(VecEnv):
         sub = int(self.tracker.subtask[i])
         return EnvSnapshot(BODY_NAMES, st.body_pos[i].cpu().numpy(), st.body_quat[i].cpu().numpy(), objects,
                            sub, self.plan[min(sub, len(self.plan) - 1)].skill)
+
+
+def _compiled(fn):
+    """fn as a `torch.compile` graph of fixed shapes (N never changes within an env)."""
+    return torch.compile(fn, dynamic=False)
 
 
 def make_env(run_cfg: RunConfig, num_envs: int | None = None, device: str | torch.device = "cpu",

@@ -59,6 +59,15 @@ def _heading(root_quat: torch.Tensor, R: torch.Tensor | None) -> torch.Tensor:
     return heading_matrix(yaw_of(root_quat)) if R is None else R
 
 
+def _to_heading(v: torch.Tensor, R: torch.Tensor) -> torch.Tensor:
+    """World vectors v [N, M, 3] in the heading frame of R [N, 3, 3] (a rotation about +Z):
+    `v @ R`, written elementwise. Why: a batched product of [M, 3] by [3, 3] matrices is one
+    slow library call per use on a CPU (~50 us at N = 64) that `torch.compile` cannot fuse."""
+    c, s = R[:, None, 0, 0], R[:, None, 1, 0]
+    x, y = v[..., 0], v[..., 1]
+    return torch.stack((c * x + s * y, c * y - s * x, v[..., 2]), dim=-1)
+
+
 def self_frame(body_pos: torch.Tensor, body_quat: torch.Tensor, body_lin: torch.Tensor,
                body_ang: torch.Tensor, dof_pos: torch.Tensor, dof_vel: torch.Tensor,
                R: torch.Tensor | None = None) -> torch.Tensor:
@@ -66,9 +75,9 @@ def self_frame(body_pos: torch.Tensor, body_quat: torch.Tensor, body_lin: torch.
     first; R [N, 3, 3] the heading matrix of the root (computed when None)."""
     n = body_pos.shape[0]
     R = _heading(body_quat[:, 0], R)
-    rel = (body_pos[:, 1:] - body_pos[:, :1]) @ R
-    axes = quat_axes_xz(body_quat).reshape(n, -1, 3) @ R
-    vel = torch.cat((body_lin, body_ang), dim=1) @ R
+    rel = _to_heading(body_pos[:, 1:] - body_pos[:, :1], R)
+    axes = _to_heading(quat_axes_xz(body_quat).reshape(n, -1, 3), R)
+    vel = _to_heading(torch.cat((body_lin, body_ang), dim=1), R)
     return torch.cat((body_pos[:, 0, 2:3], rel.reshape(n, -1), axes.reshape(n, -1), vel.reshape(n, -1),
                       dof_pos, dof_vel), dim=-1)
 
@@ -79,8 +88,8 @@ def amp_frame(root_pos: torch.Tensor, root_quat: torch.Tensor, root_lin: torch.T
     """One AMP discriminator frame [N, 89] from world-frame inputs (key_pos [N, 4, 3])."""
     n = root_pos.shape[0]
     R = _heading(root_quat, R)
-    vecs = torch.cat((quat_axes_xz(root_quat).reshape(n, 2, 3), root_lin[:, None], root_ang[:, None],
-                      key_pos - root_pos[:, None]), dim=1) @ R
+    vecs = _to_heading(torch.cat((quat_axes_xz(root_quat).reshape(n, 2, 3), root_lin[:, None], root_ang[:, None],
+                                  key_pos - root_pos[:, None]), dim=1), R)
     return torch.cat((root_pos[:, 2:3], vecs[:, :4].reshape(n, -1), dof_pos, dof_vel,
                       vecs[:, 4:].reshape(n, -1)), dim=-1)
 
@@ -117,33 +126,56 @@ def local_height_map(root_pos: torch.Tensor, R: torch.Tensor, offsets: torch.Ten
     evaluated, so far-away boxes cost nothing; on an accelerator every pair is, masked.
     """
     c, s = R[:, 0, 0], R[:, 1, 0]
-    # world XY of every point, expressed directly in the raster's sampling coordinates
-    rot = torch.stack((s * raster.su, c * raster.su, c * raster.sv, -s * raster.sv), dim=-1).reshape(-1, 2, 2)
+    # world XY of every point, expressed directly in the raster's sampling coordinates (u from
+    # world y, v from world x), elementwise: no batched matrix product (see `_to_heading`)
     base = root_pos[:, :2].flip(-1) * raster.scale - raster.shift  # [N, 2] (u, v) of the root
-    uv = base[:, None, :] + offsets[:, :2] @ rot.transpose(1, 2)  # [N, P, 2]
+    ox, oy, cn, sn = offsets[:, 0], offsets[:, 1], c[:, None], s[:, None]
+    uv = torch.stack((base[:, 0, None] + raster.su * (sn * ox + cn * oy),
+                      base[:, 1, None] + raster.sv * (cn * ox - sn * oy)), dim=-1)  # [N, P, 2]
     h = raster.sample_uv(uv)
     K = dyn_pos.shape[1]
     if K == 0:
         return h
     reach = math.sqrt(2.0) * offsets[:, :2].abs().amax() + dyn_half[:, :2].norm(dim=-1)  # [K]
     near = (dyn_pos[..., :2] - root_pos[:, None, :2]).norm(dim=-1) < reach
-    if reads_are_free(near):  # gather the pairs within reach
-        e, k = near.nonzero(as_tuple=True)
-        if len(e) == 0:
-            return h
-    else:  # every pair, the far ones masked: their number would need a host read
-        N = near.shape[0]
-        e = torch.arange(N, device=near.device).repeat_interleave(K)
-        k = torch.arange(K, device=near.device).repeat(N)
-    pts = root_pos[e, None, :2] + (offsets @ R[e].transpose(1, 2))[..., :2]  # [M, P, 2] world XY
-    Rb = quat_to_matrix(dyn_quat[e, k])  # [M, 3, 3]
-    local = (torch.cat((pts - dyn_pos[e, k, None, :2], torch.zeros_like(pts[..., :1])), dim=-1) @ Rb)[..., :2]
-    half = dyn_half[k]
-    inside = (local[..., 0].abs() <= half[:, None, 0]) & (local[..., 1].abs() <= half[:, None, 1])
-    top = box_corners_fast(dyn_pos[e, k], dyn_quat[e, k], half)[..., 2].max(dim=-1).values  # [M]
-    inside &= near[e, k][:, None]
-    val = torch.where(inside, top[:, None], torch.zeros_like(local[..., 0]))
-    return h.scatter_reduce(0, e[:, None].expand_as(val), val, reduce="amax")
+    if not reads_are_free(near):  # every pair at once: their number would need a host read
+        return torch.maximum(h, _box_tops_on_grid(root_pos, c, s, offsets, dyn_pos, dyn_quat, dyn_half[None]))
+    e, k = near.nonzero(as_tuple=True)  # gather the pairs within reach
+    if len(e) == 0:
+        return h
+    tops = _box_tops_on_grid(root_pos[e], c[e], s[e], offsets, dyn_pos[e, k, None],
+                             dyn_quat[e, k, None], dyn_half[k, None])  # [M, P]
+    return h.scatter_reduce(0, e[:, None].expand_as(tops), tops, reduce="amax")
+
+
+def _box_tops_on_grid(root_pos: torch.Tensor, c: torch.Tensor, s: torch.Tensor, offsets: torch.Tensor,
+                      box_pos: torch.Tensor, box_quat: torch.Tensor, half: torch.Tensor) -> torch.Tensor:
+    """[N, P] the highest top (world Z) of the boxes whose footprints cover grid point p of env
+    n, else 0. root_pos [N, 3], c, s [N] cos and sin of the heading, offsets [P, 3], box_pos
+    [N, K, 3], box_quat [N, K, 4], half [N or 1, K, 3].
+
+    A grid point's coordinates in box k's frame are affine in its offsets (ox, oy): lx = a0 +
+    ox a1 + oy a2, ly = b0 + ox b1 + oy b2, with coefficients per (env, box). So the work per
+    point is a few multiply-adds, one box at a time (K is small): elementwise [N, P] loops that
+    a compiled step fuses into one, and no batched matrix product."""
+    Rb = quat_to_matrix(box_quat)  # [N, K, 3, 3]; box frame coordinates = (world offset) @ Rb
+    ex, ey = root_pos[:, None, 0] - box_pos[..., 0], root_pos[:, None, 1] - box_pos[..., 1]  # [N, K]
+    c, s = c[:, None], s[:, None]
+    coef = []  # (x, y) of the box frame: (constant, per ox, per oy), each [N, K]
+    for j in (0, 1):
+        r0, r1 = Rb[..., 0, j], Rb[..., 1, j]
+        coef.append((ex * r0 + ey * r1, c * r0 + s * r1, c * r1 - s * r0))
+    n, k = box_pos.shape[:2]
+    top = box_corners_fast(box_pos.reshape(-1, 3), box_quat.reshape(-1, 4), half.expand(n, k, 3).reshape(-1, 3))
+    top = top[..., 2].amax(dim=-1).reshape(n, k)
+    hx, hy = half[..., 0].expand(n, k), half[..., 1].expand(n, k)
+    ox, oy = offsets[:, 0], offsets[:, 1]
+    out = torch.zeros(n, offsets.shape[0], dtype=root_pos.dtype, device=root_pos.device)
+    for b in range(k):
+        (x0, x1, x2), (y0, y1, y2) = ((t[:, b, None] for t in axis) for axis in coef)
+        inside = ((x0 + ox * x1 + oy * x2).abs() <= hx[:, b, None]) & ((y0 + ox * y1 + oy * y2).abs() <= hy[:, b, None])
+        out = torch.maximum(out, torch.where(inside, top[:, b, None], torch.zeros_like(out)))
+    return out
 
 
 def env_frame(root_pos: torch.Tensor, R: torch.Tensor, target: torch.Tensor,
@@ -160,8 +192,8 @@ def env_frame(root_pos: torch.Tensor, R: torch.Tensor, target: torch.Tensor,
     smp = torch.where(is_traj[:, None, None], traj_samples, target[:, None, :2])
     smp = torch.cat((smp, root_pos[:, None, 2:].expand(n, T, 1)), dim=-1)
     corners = box_corners_fast(obj_pos, obj_quat, obj_half)
-    pts = (torch.cat((target[:, None], smp, obj_pos[:, None], corners), dim=1) - root_pos[:, None]) @ R
-    axes = (quat_axes_xz(obj_quat).reshape(n, 2, 3) @ R).reshape(n, 6)
+    pts = _to_heading(torch.cat((target[:, None], smp, obj_pos[:, None], corners), dim=1) - root_pos[:, None], R)
+    axes = _to_heading(quat_axes_xz(obj_quat).reshape(n, 2, 3), R).reshape(n, 6)
     obj = torch.cat((pts[:, T + 1], axes, pts[:, T + 2:].reshape(n, -1)), dim=-1) * has_obj[:, None]
     return torch.cat((pts[:, 0], pts[:, 1:T + 1, :2].reshape(n, -1), obj, height_map), dim=-1)
 
@@ -175,9 +207,10 @@ class History:
     def push(self, frame: torch.Tensor) -> None:
         self.buf = torch.cat((self.buf[:, 1:], frame[:, None]), dim=1)
 
-    def fill(self, ids: torch.Tensor, frame: torch.Tensor) -> None:
-        """Set every step of envs ids to frame [n, d] (after a reset: no past yet)."""
-        self.buf[ids] = frame[:, None].expand(-1, self.buf.shape[1], -1)
+    def fill(self, mask: torch.Tensor, frame: torch.Tensor) -> None:
+        """Set every step of the envs in mask [N] to their row of frame [N, d] (after a reset:
+        no past yet). A mask, not indices: the same shapes at every step (`env.compile`)."""
+        self.buf = torch.where(mask[:, None, None], frame[:, None], self.buf)
 
     def flat(self) -> torch.Tensor:
         return self.buf.reshape(self.buf.shape[0], -1)
@@ -209,10 +242,10 @@ class ObservationBuilder:
         self.h_amp = History(num_envs, cfg.amp_obs_steps, AMP_DIM, device)
         self.sample_times = torch.arange(samples, device=device) * cfg.trajectory.sample_dt
 
-    def build(self, ctx, reset_ids: torch.Tensor, path_ahead: torch.Tensor, follows_path: torch.Tensor,
+    def build(self, ctx, reset: torch.Tensor, path_ahead: torch.Tensor, follows_path: torch.Tensor,
               hold: torch.Tensor, progress: torch.Tensor) -> TensorDict:
-        """Observations of the state in ctx (a `SkillContext` with targets); reset_ids [n] get
-        their whole history filled with this frame. path_ahead [N, num_samples, 2] are the
+        """Observations of the state in ctx (a `SkillContext` with targets); the envs in reset
+        [N] (bool) get their whole history filled with this frame. path_ahead [N, num_samples, 2] are the
         reference points `sample_times` ahead; follows_path [N] says where they are shown;
         hold and progress [N] are the transition hold fraction and the plan fraction done."""
         st = ctx.state
@@ -229,10 +262,9 @@ class ObservationBuilder:
         f_amp = f_self[:, self.amp_idx]  # == amp_frame(...) of the same state (tested)
         for h, f in ((self.h_self, f_self), (self.h_env, f_env), (self.h_amp, f_amp)):
             h.push(f)
-            if len(reset_ids):
-                h.fill(reset_ids, f[reset_ids])
+            h.fill(reset, f)
         task = (ctx.skill[:, None] == self.skill_ids).float()  # F.one_hot checks its input on the host
-        extra = torch.cat(((ctx.obj_lin[:, None] @ R)[:, 0] * ctx.has_obj[:, None], hold[:, None],
+        extra = torch.cat((_to_heading(ctx.obj_lin[:, None], R)[:, 0] * ctx.has_obj[:, None], hold[:, None],
                            progress[:, None]), dim=-1)
         critic = torch.cat((f_self, f_env, task, extra), dim=-1)
         return TensorDict({"self": self.h_self.flat(), "env": self.h_env.flat(), "task": task,
