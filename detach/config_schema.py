@@ -337,6 +337,16 @@ class TrainCfg:
     Follow, which has nothing to hold) got only noise from PPO's gradient, so its mean is
     whatever that drift left: -0.6 at the box in one Follow cell, where Carry's exploration
     at std 0.3 never asked for a grasp and Carry scored 0.175; about +0.1 in an earlier one."""
+    init_action_mean_choices: tuple[dict[str, float], ...] = ()
+    """With `init_from`, instead of `init_action_mean`: starting action means to choose from,
+    each written as `init_action_mean` is. Before training, the loaded policy (mean actions,
+    unchanged) plays `init_choice_trials` validation trials of the run's task with each, in an
+    evaluation env of its own seed (not the evaluation's), and the run starts from the one
+    with the highest LH mean (the first on a tie). Why: which arm pose lets a Follow policy
+    reach the box depends on where that policy holds its arms, so one fixed pose favours some
+    models and handicaps others (results/laptop/README.md, "the stage's starting point")."""
+    init_choice_trials: int = 50
+    """Validation trials per entry of `init_action_mean_choices`."""
     init_normalizers: Literal["merge", "restart", "keep"] = "merge"
     """With `init_from`: `merge` (default) keeps the source's observation statistics for the
     inputs it saw vary and takes this run's task's (from its first update) for those it never
@@ -472,6 +482,7 @@ VALUE_RANGES: dict[str, Range] = {
     "train.clip_param": POSITIVE, "train.entropy_coef": AT_LEAST_0, "train.value_loss_coef": AT_LEAST_0,
     "train.num_learning_epochs": AT_LEAST_1, "train.num_mini_batches": AT_LEAST_1,
     "train.max_grad_norm": POSITIVE, "train.init_action_std": POSITIVE, "train.torch_threads": AT_LEAST_0,
+    "train.init_choice_trials": AT_LEAST_1,
     "train.teacher_weight": AT_LEAST_0, "train.critic_warmup_iterations": AT_LEAST_0,
     "train.critic_warmup_learning_rate": POSITIVE, "train.action_bound_coef": AT_LEAST_0,
     "train.stages.pretrain": AT_LEAST_0, "train.stages.fusion": AT_LEAST_0, "train.stages.joint": AT_LEAST_0,

@@ -9,8 +9,8 @@ Carry's, it stayed so for hundreds of iterations and Carry learned nothing.
 from __future__ import annotations
 
 import warnings
-
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 import torch
@@ -203,6 +203,62 @@ def test_a_later_stage_can_start_the_grasp_at_a_chosen_mean(follow_run: Path, tm
         err = capsys.readouterr().err
         assert "train.init_action_mean" in err and words in err, err
     assert not (tmp_path / "runs").exists()
+
+
+def test_a_stage_starts_from_the_choice_of_action_means_that_scores_best(
+        follow_run: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """`train.init_action_mean_choices`: each choice plays the same validation trials (the
+    scores here are the policy's grasp mean at the trials' first state); the best starts the
+    stage, the first of a tie, with every other output row as loaded."""
+    from detach.runs import start_choice
+
+    starts, seen = [], []
+
+    def fake_evaluation(env, policy, trials, cfg, **_kw):
+        obs = env.get_observations()
+        starts.append(env.state.root_pos.clone())
+        seen.append(trials)
+        with torch.no_grad():
+            rate = float(policy(obs)[:, -1].mean())  # the grasp: the puppet's last action
+        return SimpleNamespace(lh_mean=SimpleNamespace(rate=rate))
+
+    monkeypatch.setattr(start_choice, "run_evaluation", fake_evaluation)
+    cfg = complete_run_config(resolve(ROOT / "configs/tasks/carry.yaml", "mlp", TINY + [
+        f"train.init_from={follow_run}", "train.init_choice_trials=3",
+        "train.init_action_mean_choices=[{grasp: -0.5}, {grasp: 0.7, height: -0.1}, {grasp: 0.7}]"]))
+    _env, runner = build_runner(cfg, None, "cpu", progress=False)
+    load_initial_weights(runner, cfg)
+    actor = runner.alg.actor
+    layer = [m for m in actor.mlp.modules() if isinstance(m, torch.nn.Linear)][-1]
+    loaded = layer.weight.detach().clone()
+    line = start_choice.choose_action_means(actor, cfg, "cpu")
+    assert "{grasp: -0.5}: -0.50; {grasp: 0.7, height: -0.1}: 0.70; {grasp: 0.7}: 0.70" in line, line
+    assert "starting from choice 1" in line and "height mean -0.1" in line
+    assert seen == [3, 3, 3]
+    torch.testing.assert_close(starts[1], starts[0])
+    torch.testing.assert_close(starts[2], starts[0])
+    torch.testing.assert_close(layer.bias[-2:].detach(), torch.tensor([-0.1, 0.7]))
+    torch.testing.assert_close(layer.weight[:-2].detach(), loaded[:-2])
+
+
+def test_choices_of_action_means_run_through_the_cli_and_are_checked(
+        follow_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "runs"
+    assert cli.main(["train", str(ROOT / "configs/tasks/carry.yaml"), "--model", "mlp", "--runs", str(out), *TINY,
+                     "train.max_iterations=1", "--no-eval", f"train.init_from={follow_run}",
+                     "train.init_choice_trials=2", "train.init_action_mean_choices=[{grasp: -1.0}, {grasp: 1.0}]"]) == 0
+    said = capsys.readouterr().out
+    assert "LH mean over 2 validation trials each: {grasp: -1}: " in said and "starting from choice" in said, said
+    for bad, key, words in (
+            (["train.init_action_mean_choices=[{grasp: 0.1}, {grip: 0.1}]"], "train.init_action_mean_choices[1].grip",
+             "found 'grip'"),
+            (["train.init_action_mean_choices=[{grasp: 0.1}]", "+train.init_action_mean.grasp=0.1"],
+             "train.init_action_mean_choices", "keep one of the two")):
+        assert cli.main(["train", str(ROOT / "configs/tasks/carry.yaml"), "--model", "mlp", "--runs",
+                         str(tmp_path / "bad"), *TINY, f"train.init_from={follow_run}", *bad]) == 2
+        err = capsys.readouterr().err
+        assert key in err and words in err, err
+    assert not (tmp_path / "bad").exists()
 
 
 def test_a_critic_warmup_trains_the_critic_alone_first(follow_run: Path) -> None:

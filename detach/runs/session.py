@@ -25,6 +25,7 @@ from detach.runs.folder import RunFolder, atomic_write_json, atomic_write_text, 
 from detach.runs.mcap_log import RunLogWriter
 from detach.runs.policy import load_policy
 from detach.runs.provenance import write_provenance
+from detach.runs.start_choice import choose_action_means
 from detach.train.checkpoints import CheckpointError
 from detach.train.setup import (
     apply_torch_threads, build_runner, load_initial_weights, prepare_assets, seed_everything, train_cfg_dict,
@@ -53,6 +54,8 @@ def train_and_evaluate(run: RunFolder, resume: bool, eval_tasks: Sequence[Path] 
         else:
             if cfg.train.init_from:
                 print(load_initial_weights(runner, cfg), flush=True)
+                if cfg.train.init_action_mean_choices:
+                    print(choose_action_means(runner.alg.actor, cfg, device), flush=True)
             log.log_scene(scene_message(env, cfg))
         runner.on_iteration = lambda it, _m: run.set_state("running", iteration=it + 1)
         runner.episode_recorder = TrainingEpisodes(log)

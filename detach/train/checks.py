@@ -91,18 +91,24 @@ def complete_run_config(cfg: RunConfig) -> RunConfig:
     if base_key and not cfg.train.init_from:
         raise origin.error(("model", base_key), f"model {cfg.model_name} trains on top of an earlier stage's "
                            "policy: set train.init_from to that run folder or checkpoint")
-    if cfg.train.init_action_mean:
+    means = [(("train", "init_action_mean"), cfg.train.init_action_mean)] if cfg.train.init_action_mean else []
+    means += [(("train", "init_action_mean_choices", i), choice)
+              for i, choice in enumerate(cfg.train.init_action_mean_choices)]
+    if cfg.train.init_action_mean and cfg.train.init_action_mean_choices:
+        raise origin.error(("train", "init_action_mean_choices"), "chooses the starting action means, and "
+                           "train.init_action_mean sets them too: keep one of the two")
+    for key, choice in means:
         if not cfg.train.init_from:
-            raise origin.error(("train", "init_action_mean"), "sets action means of a policy loaded with "
-                               "train.init_from, and this run starts from scratch")
+            raise origin.error(key[:2], "sets action means of a policy loaded with train.init_from, and this run "
+                               "starts from scratch")
         named = character_class(cfg.env.character).named_actions
-        for name, value in cfg.train.init_action_mean.items():
+        for name, value in choice.items():
             if name not in named:
-                raise origin.error(("train", "init_action_mean", name), f"expected an action of the "
-                                   f"{cfg.env.character} ({', '.join(named) or 'it names none'}), found {name!r}")
+                raise origin.error((*key, name), f"expected an action of the {cfg.env.character} "
+                                   f"({', '.join(named) or 'it names none'}), found {name!r}")
             if not -1.0 <= value <= 1.0:
-                raise origin.error(("train", "init_action_mean", name), f"expected a mean in [-1, 1] (actions "
-                                   f"are clipped there), found {value:g}")
+                raise origin.error((*key, name), f"expected a mean in [-1, 1] (actions are clipped there), "
+                                   f"found {value:g}")
     if cfg.train.init_action_std is not None and not cfg.train.init_from:
         raise origin.error(("train", "init_action_std"), "sets the action std of a policy loaded with "
                            "train.init_from, and this run starts from scratch (model.init_noise_std sets its std)")

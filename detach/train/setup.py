@@ -230,11 +230,7 @@ def load_initial_weights(runner: DetachRunner, cfg: RunConfig) -> str:
         restarted += f", action std {set_action_std(alg.actor, cfg.train.init_action_std):.2f} -> " \
                      f"{cfg.train.init_action_std:g}"
     if cfg.train.init_action_mean:
-        named = character_class(cfg.env.character).named_actions
-        means = {named[a]: v for a, v in cfg.train.init_action_mean.items()}
-        norms = set_action_means(alg.actor, means)
-        restarted += ", " + ", ".join(f"{a} mean {v:g} in every state (its output row's norm {n:.2f} before)"
-                                      for (a, v), n in zip(cfg.train.init_action_mean.items(), norms))
+        restarted += ", " + apply_action_means(alg.actor, cfg.env.character, cfg.train.init_action_mean)
     return f"initialised from {checkpoint} (model {source_model}, iteration {state.get('iter', '?')}{restarted})"
 
 
@@ -256,16 +252,30 @@ def set_action_std(actor: torch.nn.Module, std: float) -> float:
     return before
 
 
-def set_action_means(actor: torch.nn.Module, means: dict[int, float]) -> list[float]:
-    """Make each action of `means` (index -> value) start at that mean in every state: its row
-    of the output layer of `actor`'s head (rsl-rl's `mlp`, whose last Linear writes the
-    Gaussian's mean) zeroed, its bias the value; returns the norm each row had (weights and
-    bias, for the log)."""
+def apply_action_means(actor: torch.nn.Module, character: str, means: dict[str, float]) -> str:
+    """`set_action_means` by the character's action names (`train.init_action_mean`); returns
+    a phrase for the log."""
+    named = character_class(character).named_actions
+    norms = set_action_means(actor, {named[a]: v for a, v in means.items()})
+    return ", ".join(f"{a} mean {v:g} in every state (its output row's norm {n:.2f} before)"
+                     for (a, v), n in zip(means.items(), norms))
+
+
+def action_mean_layer(actor: torch.nn.Module) -> torch.nn.Linear:
+    """The output layer of `actor`'s head (rsl-rl's `mlp`, whose last Linear writes the
+    Gaussian's mean); ConfigError for a policy without one."""
     layers = [m for m in actor.mlp.modules() if isinstance(m, torch.nn.Linear)]
     if not layers or layers[-1].out_features != actor.distribution.output_dim:
         raise ConfigError(f"train.init_action_mean: the policy ({type(actor).__name__}) has no output layer "
                           "that writes the action mean")
-    out = layers[-1]
+    return layers[-1]
+
+
+def set_action_means(actor: torch.nn.Module, means: dict[int, float]) -> list[float]:
+    """Make each action of `means` (index -> value) start at that mean in every state: its row
+    of `action_mean_layer` zeroed, its bias the value; returns the norm each row had (weights
+    and bias, for the log)."""
+    out = action_mean_layer(actor)
     with torch.no_grad():
         before = [float(torch.cat([out.weight[a], out.bias[a:a + 1]]).norm()) for a in means]
         for action, value in means.items():
