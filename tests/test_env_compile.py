@@ -18,15 +18,22 @@ from detach.envs.lh_env import make_env
 ROOT = Path(__file__).resolve().parents[1]
 N = 8
 
-pytestmark = [
-    pytest.mark.slow,
-    pytest.mark.skipif(not (shutil.which("c++") or shutil.which("g++") or shutil.which("clang++")),
-                       reason="torch.compile on a CPU needs a C++ compiler"),
-]
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def inductor() -> None:
+    """Skip where torch.compile cannot build CPU kernels (no C++ compiler or headers)."""
+    if not (shutil.which("c++") or shutil.which("g++") or shutil.which("clang++")):
+        pytest.skip("torch.compile on a CPU needs a C++ compiler")
+    try:
+        torch.compile(lambda x: x * 2.0 + 1.0, dynamic=False)(torch.ones(3))
+    except Exception as exc:  # noqa: BLE001 - any failure to build means no compiled path here
+        pytest.skip(f"torch.compile cannot build CPU kernels here: {type(exc).__name__}: {exc}"[:300])
 
 
 @pytest.mark.parametrize(("task", "character"), [("lh3", "humanoid"), ("lh1", "puppet")])
-def test_the_compiled_step_gives_the_eager_steps_results(task: str, character: str) -> None:
+def test_the_compiled_step_gives_the_eager_steps_results(task: str, character: str, inductor: None) -> None:
     envs = [make_env(resolve(str(ROOT / f"configs/tasks/{task}.yaml"), "mlp",
                              [f"env.character={character}", f"sim.compile={compiled}", "sim.nthread=1",
                               "env.episode_length=25"]), num_envs=N, verbose=False, seed=3)
