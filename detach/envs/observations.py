@@ -209,7 +209,7 @@ class History:
 
     def fill(self, mask: torch.Tensor, frame: torch.Tensor) -> None:
         """Set every step of the envs in mask [N] to their row of frame [N, d] (after a reset:
-        no past yet). A mask, not indices: the same shapes at every step (`env.compile`)."""
+        no past yet). A mask, not indices: the same shapes at every step (`sim.compile`)."""
         self.buf = torch.where(mask[:, None, None], frame[:, None], self.buf)
 
     def flat(self) -> torch.Tensor:
