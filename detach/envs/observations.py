@@ -38,7 +38,7 @@ from tensordict import TensorDict
 
 from detach.config_schema import EnvCfg
 from detach.envs.obs_spec import ObsSpec
-from detach.host_sync import reads_are_free
+from detach.host_sync import may_any, reads_are_free
 from detach.sim.raster import Raster
 from detach.torch_math import box_corners_fast, heading_matrix, quat_axes_xz, quat_to_matrix, yaw_of
 
@@ -136,10 +136,10 @@ def local_height_map(root_pos: torch.Tensor, R: torch.Tensor, offsets: torch.Ten
     K = dyn_pos.shape[1]
     if K == 0:
         return h
+    if not reads_are_free(dyn_pos):  # every pair at once: their number would need a host read
+        return torch.maximum(h, _box_tops_on_grid(root_pos, c, s, offsets, dyn_pos, dyn_quat, dyn_half[None]))
     reach = math.sqrt(2.0) * offsets[:, :2].abs().amax() + dyn_half[:, :2].norm(dim=-1)  # [K]
     near = (dyn_pos[..., :2] - root_pos[:, None, :2]).norm(dim=-1) < reach
-    if not reads_are_free(near):  # every pair at once: their number would need a host read
-        return torch.maximum(h, _box_tops_on_grid(root_pos, c, s, offsets, dyn_pos, dyn_quat, dyn_half[None]))
     e, k = near.nonzero(as_tuple=True)  # gather the pairs within reach
     if len(e) == 0:
         return h
@@ -260,9 +260,11 @@ class ObservationBuilder:
         f_env = env_frame(st.root_pos, R, ctx.goal, path_ahead, follows_path, ctx.has_obj, ctx.obj_pos,
                           ctx.obj_quat, ctx.obj_half, hmap)
         f_amp = f_self[:, self.amp_idx]  # == amp_frame(...) of the same state (tested)
+        restart = may_any(reset)
         for h, f in ((self.h_self, f_self), (self.h_env, f_env), (self.h_amp, f_amp)):
             h.push(f)
-            h.fill(reset, f)
+            if restart:
+                h.fill(reset, f)
         task = (ctx.skill[:, None] == self.skill_ids).float()  # F.one_hot checks its input on the host
         extra = torch.cat((_to_heading(ctx.obj_lin[:, None], R)[:, 0] * ctx.has_obj[:, None], hold[:, None],
                            progress[:, None]), dim=-1)

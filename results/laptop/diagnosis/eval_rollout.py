@@ -1,6 +1,6 @@
-"""Shared by the Carry probes (`carry_approach.py`, `carry_after_grasp.py`): the evaluation's
-environment for a run's config, with a checkpoint's mean-action policy, and quartiles for
-their one-line reports."""
+"""Shared by the Carry probes (`carry_approach.py`, `carry_after_grasp.py`, `carry_rollout.py`):
+the evaluation's environment for a run's config, with a checkpoint's mean-action policy, and
+quartiles for their one-line reports."""
 from pathlib import Path
 
 import torch
