@@ -186,7 +186,7 @@ def build_parser() -> argparse.ArgumentParser:
     mode.add_argument("--resume", type=Path, metavar="RUN_DIR",
                       help="continue an interrupted or failed run from its latest checkpoint")
     mode.add_argument("--eval", type=Path, metavar="RUN_DIR|CKPT",
-                      help="evaluate a run's latest checkpoint (or the given checkpoint)")
+                      help="evaluate a run's policy (or the given checkpoint)")
     mode.add_argument("--sweep", type=Path, metavar="SWEEP_YAML",
                       help="run every unfinished cell of a sweep (configs/sweeps/)")
     _add_eval_task(parser, "evaluate (with --eval)")
@@ -210,8 +210,9 @@ def build_train_parser() -> argparse.ArgumentParser:
 
 
 def build_eval_parser() -> argparse.ArgumentParser:
-    parser = _subparser("eval", "Evaluate a run's newest readable checkpoint (or the given checkpoint file); "
-                                "writes eval.json (eval_<task>.json for another task).")
+    parser = _subparser("eval", "Evaluate a run's policy (the checkpoint it selected on validation trials, else "
+                                "its newest readable one) or the given checkpoint file; writes eval.json "
+                                "(eval_<task>.json for another task).")
     parser.add_argument("eval", type=Path, metavar="RUN_DIR|CKPT")
     _add_eval_task(parser, "evaluate")
     _add_trials(parser)
@@ -270,7 +271,8 @@ def build_export_parser() -> argparse.ArgumentParser:
                                   "for inference outside detach.")
     parser.add_argument("target", type=Path, metavar="RUN_DIR")
     parser.add_argument("--checkpoint", type=_int_in(0), default=None, metavar="N",
-                        help="iteration of the checkpoint (default: the newest readable one)")
+                        help="iteration of the checkpoint (default: the run's policy: its selected "
+                             "checkpoint, else the newest readable one)")
     parser.add_argument("--format", dest="fmt", choices=["onnx", "jit", "init"], default="onnx",
                         help="ONNX (onnxruntime), TorchScript, or init: a compact start for train.init_from "
                              "(actor and critic in float16, no optimiser, replay or discriminator) "

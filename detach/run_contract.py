@@ -14,6 +14,8 @@ project: any layer may read it. docs/ARCHITECTURE.md ("Run folder") describes it
                              /tf (frame transforms) and /foxglove/scene (the scene's meshes)
         checkpoints/model_<iteration>.pt
         checkpoints/amp_replay_<iteration>.pt   AMP replay buffer of the newest checkpoint
+        selection.json       with train.select_checkpoint_trials: each checkpoint's validation
+                             score and the one chosen as the run's policy (`selected_checkpoint`)
         eval.json            `EvalResult` on the run's own task; eval_<task>.json on another
         provenance.json      code and machine of the run: commit, dirty diff, python, package
                              versions, device, command line (one record per start / resume)
@@ -30,6 +32,7 @@ message that does not follow the format, so readers can skip or report it.
 from __future__ import annotations
 
 import contextlib
+import json
 import math
 import os
 import re
@@ -45,6 +48,7 @@ LOG_FILE = "log.mcap"
 CHECKPOINT_DIR = "checkpoints"
 EVAL_FILE = "eval.json"
 EVAL_GLOB = "eval*.json"
+SELECTION_FILE = "selection.json"
 PROVENANCE_FILE = "provenance.json"
 PARAMS_DIR = "params"
 AGENT_PARAMS_FILE = "params/agent.yaml"
@@ -80,6 +84,25 @@ def checkpoint_iteration(name: str) -> int | None:
     """Iteration of a checkpoint file name, None if the name is not one."""
     m = _CHECKPOINT.match(name)
     return int(m.group(1)) if m else None
+
+
+def selected_checkpoint(run_dir: Path) -> Path | None:
+    """The checkpoint that selection.json names as the run's policy, None when there is no
+    selection (the run's policy is then its newest checkpoint) or its file is gone. A
+    selection.json that does not follow the format raises ContractError."""
+    path = Path(run_dir) / SELECTION_FILE
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        return None
+    try:
+        name = json.loads(text)["checkpoint"]
+    except (ValueError, KeyError, TypeError):
+        raise ContractError(f"{path}: expected a JSON object with a 'checkpoint' file name") from None
+    if not isinstance(name, str) or checkpoint_iteration(name) is None:
+        raise ContractError(f"{path}: 'checkpoint' is not a checkpoint file name: {name!r}")
+    chosen = Path(run_dir) / CHECKPOINT_DIR / name
+    return chosen if chosen.is_file() else None
 
 
 REPLAY_PREFIX = "amp_replay_"

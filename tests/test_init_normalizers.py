@@ -210,7 +210,7 @@ def test_a_stage_starts_from_the_choice_of_action_means_that_scores_best(
     """`train.init_action_mean_choices`: each choice plays the same validation trials (the
     scores here are the policy's grasp mean at the trials' first state); the best starts the
     stage, the first of a tie, with every other output row as loaded."""
-    from detach.runs import start_choice
+    from detach.runs import start_choice, validation
 
     starts, seen = [], []
 
@@ -222,7 +222,7 @@ def test_a_stage_starts_from_the_choice_of_action_means_that_scores_best(
             rate = float(policy(obs)[:, -1].mean())  # the grasp: the puppet's last action
         return SimpleNamespace(lh_mean=SimpleNamespace(rate=rate))
 
-    monkeypatch.setattr(start_choice, "run_evaluation", fake_evaluation)
+    monkeypatch.setattr(validation, "run_evaluation", fake_evaluation)
     cfg = complete_run_config(resolve(ROOT / "configs/tasks/carry.yaml", "mlp", TINY + [
         f"train.init_from={follow_run}", "train.init_choice_trials=3",
         "train.init_action_mean_choices=[{grasp: -0.5}, {grasp: 0.7, height: -0.1}, {grasp: 0.7}]"]))

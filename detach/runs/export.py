@@ -53,7 +53,7 @@ class Exported:
 
 def export_run(run_dir: Path, checkpoint: int | None = None, fmt: str = "onnx",
                out: Path | None = None, *, output: Path | None = None) -> Exported:
-    """Export checkpoint `checkpoint` (an iteration; None: the newest readable) of a run as
+    """Export checkpoint `checkpoint` (an iteration; None: the run's policy, `RunFolder.policy_checkpoint`) of a run as
     `fmt` (onnx | jit) to `out` (default <run>/exported/policy_<iteration>.onnx|.pt). ConfigError
     for a missing run, checkpoint or extra; RuntimeError when the file disagrees with torch."""
     out = out if out is not None else output
@@ -63,7 +63,7 @@ def export_run(run_dir: Path, checkpoint: int | None = None, fmt: str = "onnx",
     if not run.config_path.exists():
         raise ConfigError("not a run folder (no config.yaml)", str(run_dir))
     if checkpoint is None:
-        path = run.usable_checkpoint()
+        path = run.policy_checkpoint()
         if path is None:
             raise ConfigError("run has no readable checkpoint to export", str(run_dir))
     else:

@@ -27,8 +27,9 @@ from typing import Any, Callable, Literal
 from detach.config import dump, load_run_config
 from detach.config_schema import RunConfig
 from detach.run_contract import (
-    CHECKPOINT_DIR, CONFIG_FILE, EVAL_FILE, LIVE_STATES, LOG_FILE, RUN_MARKERS, RUN_STATES, STATUS_FILE,
-    STDOUT_FILE, EvalResult, Status, atomic_writer, checkpoint_iteration, is_temp_file,
+    CHECKPOINT_DIR, CONFIG_FILE, EVAL_FILE, LIVE_STATES, LOG_FILE, RUN_MARKERS, RUN_STATES, SELECTION_FILE,
+    STATUS_FILE, STDOUT_FILE, ContractError, EvalResult, Status, atomic_writer, checkpoint_iteration, is_temp_file,
+    selected_checkpoint,
 )
 
 RunState = Literal["queued", "running", "finished", "failed", "interrupted"]
@@ -168,6 +169,10 @@ class RunFolder:
         return self.path / EVAL_FILE
 
     @property
+    def selection_path(self) -> Path:
+        return self.path / SELECTION_FILE
+
+    @property
     def checkpoints(self) -> Path:
         return self.path / CHECKPOINT_DIR
 
@@ -286,6 +291,28 @@ class RunFolder:
                 continue
             return path
         return None
+
+    def policy_checkpoint(self, map_location: str = "cpu", report: Callable[[str], None] = print) -> Path | None:
+        """The run's policy: the checkpoint selection.json chose on validation trials
+        (`train.select_checkpoint_trials`), else the newest that reads back whole. Training
+        resumes from the newest (`usable_checkpoint`) whatever was selected."""
+        from detach.train.checkpoints import CheckpointError, UnreadableCheckpoint, read_checkpoint
+
+        try:
+            chosen = selected_checkpoint(self.path)
+        except ContractError as exc:
+            raise CheckpointError(str(exc)) from None
+        if chosen is not None:
+            try:
+                read_checkpoint(chosen, map_location)
+                return chosen
+            except UnreadableCheckpoint as exc:
+                report(f"skipping the selected checkpoint: {exc}")
+        return self.usable_checkpoint(map_location, report)
+
+    def clear_selection(self) -> None:
+        """Forget the chosen checkpoint (a resumed run trains on and chooses again)."""
+        self.selection_path.unlink(missing_ok=True)
 
     def remove_stale_temp_files(self) -> list[Path]:
         """Delete temporary files that writers killed mid-write left behind (their pid, in the

@@ -31,7 +31,7 @@ class PolicyRollout:
 
         self.run = run
         self.cfg = eval_config(run.config(), task_path)
-        self.checkpoint = checkpoint or run.usable_checkpoint(device)
+        self.checkpoint = checkpoint or run.policy_checkpoint(device)
         if self.checkpoint is None:
             raise CheckpointError("no readable checkpoint to play", str(run.checkpoints))
         prepare_assets(self.cfg.task)

@@ -21,6 +21,7 @@ from detach.envs.lh_env import make_env
 from detach.eval.episodes import TrainingEpisodes, run_evaluation
 from detach.eval.scene import scene_message
 from detach.run_contract import AGENT_PARAMS_FILE, checkpoint_iteration, eval_file
+from detach.runs.checkpoint_choice import select_checkpoint
 from detach.runs.folder import RunFolder, atomic_write_json, atomic_write_text, read_eval
 from detach.runs.mcap_log import RunLogWriter
 from detach.runs.policy import load_policy
@@ -49,6 +50,7 @@ def train_and_evaluate(run: RunFolder, resume: bool, eval_tasks: Sequence[Path] 
         runner.keep_last, runner.keep_every = cfg.train.keep_checkpoints.last, cfg.train.keep_checkpoints.every
         start = 0
         if resume:
+            run.clear_selection()
             start = runner.load_checkpoint(checkpoint)
             print(f"resumed from {checkpoint.name}: continuing at iteration {start}", flush=True)
         else:
@@ -62,6 +64,9 @@ def train_and_evaluate(run: RunFolder, resume: bool, eval_tasks: Sequence[Path] 
         runner.learn(cfg.train.max_iterations, init_at_random_ep_len=cfg.train.init_at_random_ep_len)
     finally:
         log.close()
+    if cfg.train.select_checkpoint_trials:
+        del env, runner  # the validation env takes their place
+        print(select_checkpoint(run, cfg, device), flush=True)
     if evaluate:
         evaluate_run(run, None, None, trials, device)
         for task in eval_tasks:
@@ -119,7 +124,7 @@ def evaluate_run(run: RunFolder, task_path: Path | None, checkpoint: Path | None
     train_cfg = run.config()
     cfg = eval_config(train_cfg, task_path)
     device = device or cfg.device
-    checkpoint = checkpoint or run.usable_checkpoint(device)
+    checkpoint = checkpoint or run.policy_checkpoint(device)
     if checkpoint is None:
         raise CheckpointError("no readable checkpoint to evaluate", str(run.checkpoints))
     trials = cfg.eval.trials if trials is None else trials

@@ -13,13 +13,8 @@ from __future__ import annotations
 import torch
 
 from detach.config_schema import RunConfig
-from detach.envs.lh_env import make_env
-from detach.eval.episodes import run_evaluation
+from detach.runs.validation import validation_env, validation_score
 from detach.train.setup import action_mean_layer, apply_action_means
-
-VALIDATION_SEED_OFFSET = 7919
-"""The validation env's seed is the run's plus this: its trials are not the evaluation's
-(whose env takes the run's seed)."""
 
 
 def choose_action_means(actor: torch.nn.Module, cfg: RunConfig, device: str) -> str:
@@ -29,18 +24,12 @@ def choose_action_means(actor: torch.nn.Module, cfg: RunConfig, device: str) -> 
     choices, trials = cfg.train.init_action_mean_choices, cfg.train.init_choice_trials
     layer = action_mean_layer(actor)
     loaded = {k: v.clone() for k, v in layer.state_dict().items()}
-    seed = int(cfg.seed) + VALIDATION_SEED_OFFSET
-    env = make_env(cfg, num_envs=min(cfg.eval.num_envs, trials), device=device, eval_mode=True, verbose=False,
-                   seed=seed)
+    env = validation_env(cfg, trials, device)
     scores = []
     for choice in choices:
         layer.load_state_dict(loaded)
         apply_action_means(actor, cfg.env.character, choice)
-        env.gen.manual_seed(seed)  # every choice plays the same trials
-        with torch.inference_mode():  # the env's tensors are inference tensors from the first trial on
-            env.reset()
-            result = run_evaluation(env, lambda obs: actor(obs), trials, cfg, progress=False)
-        scores.append(result.lh_mean.rate)
+        scores.append(validation_score(env, lambda obs: actor(obs), cfg, trials))
     best = max(range(len(choices)), key=lambda i: (scores[i], -i))
     layer.load_state_dict(loaded)
     applied = apply_action_means(actor, cfg.env.character, choices[best])

@@ -25,8 +25,8 @@ import numpy as np
 import torch
 
 from detach.run_contract import (
-    CHECKPOINT_DIR, CONFIG_FILE, atomic_writer, checkpoint_file, checkpoint_iteration, fsync_folder, replay_file,
-    replay_iteration,
+    CHECKPOINT_DIR, CONFIG_FILE, ContractError, atomic_writer, checkpoint_file, checkpoint_iteration, fsync_folder,
+    replay_file, replay_iteration, selected_checkpoint,
 )
 from detach.yaml_source import ConfigError
 
@@ -193,9 +193,16 @@ def restore_rng(state: dict[str, Any], env_generator: torch.Generator | None = N
 
 def find_init_checkpoint(source: str) -> tuple[Path, Path | None]:
     """(checkpoint file, its run folder or None) of `train.init_from`: a run folder (its
-    latest checkpoint) or a checkpoint file."""
+    policy: the checkpoint it selected on validation trials, else its latest) or a checkpoint
+    file."""
     path = Path(source)
     if path.is_dir():
+        try:
+            chosen = selected_checkpoint(path)
+        except ContractError as exc:
+            raise ConfigError(f"train.init_from: {exc}") from None
+        if chosen is not None:
+            return chosen, path
         found = sorted((it, p) for p in (path / CHECKPOINT_DIR).glob("*.pt")
                        if (it := checkpoint_iteration(p.name)) is not None)
         if not found:

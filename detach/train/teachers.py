@@ -17,7 +17,7 @@ copy of `train.init_from`), which makes the term a preservation term for the ski
 policy already has.
 
 The skill of a step is the `task` observation group (the skill one-hot, registry order); a
-teacher is any run folder (its newest checkpoint) or checkpoint file of a run whose model
+teacher is any run folder (its policy) or checkpoint file of a run whose model
 builds for this env (it keeps its own observation normalisers), or `oracle`: the scripted
 oracle (`detach.envs.oracle`), whose action in the true state the env stores with every
 observation (`LHEnv.provide_oracle_actions`; a scriptable character only). Taught so, on the
@@ -55,9 +55,9 @@ class OracleTeacher(torch.nn.Module):
 
 
 def teacher_source(source: str) -> tuple[Path, Path]:
-    """(checkpoint file, run folder) of a teacher: a run folder (its latest checkpoint) or a
-    checkpoint file inside one (ValueError: the teacher's model config lives in its run
-    folder's config.yaml)."""
+    """(checkpoint file, run folder) of a teacher: a run folder (its policy, as for
+    `train.init_from`) or a checkpoint file inside one (ValueError: the teacher's model
+    config lives in its run folder's config.yaml)."""
     try:
         checkpoint, run = find_init_checkpoint(source)
     except ConfigError as exc:  # worded for train.init_from
