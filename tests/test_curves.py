@@ -53,3 +53,27 @@ def test_a_figure_is_redrawn_only_when_its_runs_or_their_logs_change(tmp_path: P
         log.write(b"\0")
     assert len(write_sweep_curves({"follow/mlp/s0/a": first}, plots, "mini", "other", notes.append)) == 1
     assert len(notes) == 1
+
+
+def test_the_checkpoint_a_run_chose_as_its_policy_is_marked(tmp_path: Path, monkeypatch) -> None:
+    """With `train.select_checkpoint_trials`, the curve carries the chosen iteration (a dashed
+    line in the figure), and a new choice redraws the figure."""
+    from types import SimpleNamespace
+
+    from detach.runs import validation
+
+    scores = iter([0.1, 0.8, 0.3, 0.2])
+    monkeypatch.setattr(validation, "run_evaluation",
+                        lambda *_a, **_k: SimpleNamespace(lh_mean=SimpleNamespace(rate=next(scores))))
+    out = tmp_path / "runs"
+    assert cli.main(["configs/tasks/follow.yaml", "--model", "mlp", "--out", str(out), *TINY, "train.save_interval=1",
+                     "train.keep_checkpoints.last=0", "train.select_checkpoint_trials=1"]) == 0
+    run = find_runs(out)[0]
+    curve = run_curve(run, "mlp", 0)
+    assert curve is not None and curve.selected == 1
+    notes: list[str] = []
+    cells = {"carry/mlp/s0/a": run}
+    assert len(write_sweep_curves(cells, tmp_path / "plots", "mini", "mini", notes.append)) == 1
+    run.selection_path.write_text(run.selection_path.read_text().replace("model_1.pt", "model_2.pt"))
+    assert run_curve(run, "mlp", 0).selected == 2
+    assert len(write_sweep_curves(cells, tmp_path / "plots", "mini", "mini", notes.append)) == 1 and not notes

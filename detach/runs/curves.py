@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-from detach.run_contract import atomic_writer
+from detach.run_contract import ContractError, atomic_writer, checkpoint_iteration, selected_checkpoint
 from detach.runs.folder import RunFolder
 from detach.runs.mcap_log import read_metrics
 
@@ -49,6 +49,8 @@ class Curve:
     iterations: list[int]
     values: dict[str, list[float]]
     """panel title -> one value per iteration (NaN where the iteration did not log it)."""
+    selected: int | None = None
+    """Iteration of the checkpoint the run chose as its policy (selection.json), if it chose."""
 
 
 def run_curve(run: RunFolder, model: str, seed: int) -> Curve | None:
@@ -67,7 +69,15 @@ def run_curve(run: RunFolder, model: str, seed: int) -> Curve | None:
               for title, name in chosen.items() if name is not None}
     if not values:  # no episode ended yet
         return None
-    return Curve(f"{model} s{seed}", [int(m["iteration"]) for m in metrics], values)
+    return Curve(f"{model} s{seed}", [int(m["iteration"]) for m in metrics], values, _selected_iteration(run))
+
+
+def _selected_iteration(run: RunFolder) -> int | None:
+    try:
+        chosen = selected_checkpoint(run.path)
+    except ContractError:
+        return None
+    return checkpoint_iteration(chosen.name) if chosen is not None else None
 
 
 def _trailing_mean(values: list[float], window: int) -> list[float]:
@@ -82,15 +92,18 @@ def _trailing_mean(values: list[float], window: int) -> list[float]:
 
 def sources_digest(title: str, runs: list[tuple[str, RunFolder]]) -> str:
     """Digest of what a stage's figure is drawn from: the title, and per cell its key, run
-    folder and log file's size and modification time (a log being written changes both)."""
+    folder, and its log's and selection.json's sizes and modification times (a log being
+    written changes both)."""
     h = hashlib.sha256(title.encode())
     for key, run in runs:
-        try:
-            st = run.log_path.stat()
-            size, mtime = st.st_size, st.st_mtime_ns
-        except OSError:
-            size, mtime = -1, -1
-        h.update(f"\0{key}\0{run.path.resolve()}\0{size}\0{mtime}".encode())
+        h.update(f"\0{key}\0{run.path.resolve()}".encode())
+        for path in (run.log_path, run.selection_path):
+            try:
+                st = path.stat()
+                size, mtime = st.st_size, st.st_mtime_ns
+            except OSError:
+                size, mtime = -1, -1
+            h.update(f"\0{size}\0{mtime}".encode())
     return h.hexdigest()
 
 
@@ -106,7 +119,8 @@ def drawn_from(path: Path) -> str | None:
 
 
 def plot_stage(stage: str, curves: list[Curve], path: Path, title: str, sources: str | None = None) -> None:
-    """One figure: a panel per metric any curve has, a line per curve."""
+    """One figure: a panel per metric any curve has, a line per curve; a dashed line at the
+    iteration a run chose as its policy."""
     import matplotlib
 
     matplotlib.use("Agg")  # files only, no display
@@ -123,8 +137,11 @@ def plot_stage(stage: str, curves: list[Curve], path: Path, title: str, sources:
                 continue
             colour = colours[i % len(colours)]
             ax.plot(curve.iterations, curve.values[panel], ".", color=colour, alpha=0.3, markersize=2.5)
+            label = curve.label if curve.selected is None else f"{curve.label} (policy: iteration {curve.selected})"
             ax.plot(curve.iterations, _trailing_mean(curve.values[panel], SMOOTH), color=colour,
-                    linewidth=1.6, label=curve.label)
+                    linewidth=1.6, label=label)
+            if curve.selected is not None:
+                ax.axvline(curve.selected, color=colour, linestyle="--", linewidth=0.9, alpha=0.8)
         ax.set_title(panel, fontsize=10)
         ax.set_xlabel("PPO iteration", fontsize=8)
         ax.tick_params(labelsize=8)
@@ -134,7 +151,9 @@ def plot_stage(stage: str, curves: list[Curve], path: Path, title: str, sources:
     for ax in list(axes.flat)[len(panels):]:
         ax.axis("off")
     axes.flat[0].legend(fontsize=8)
-    fig.suptitle(f"{title}: {stage} (dots: per iteration; line: mean of the last {SMOOTH} logged)", fontsize=11)
+    chosen = "; dashed: the checkpoint chosen as the policy" if any(c.selected is not None for c in curves) else ""
+    fig.suptitle(f"{title}: {stage} (dots: per iteration; line: mean of the last {SMOOTH} logged{chosen})",
+                 fontsize=11)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     try:
