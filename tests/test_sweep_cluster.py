@@ -106,6 +106,8 @@ def test_a_cells_work_is_its_training_samples_plus_its_evaluation_steps() -> Non
     by_stage = {c.stage: c for c in cells(sweep, sweep_path) if c.model == "detach"}
     follow, carry = by_stage["follow"], by_stage["carry"]
     assert cell_work(follow, trials=100) == 400 * 64 * 32 + 100 * 1200  # follow.yaml's 40 s episodes
-    assert cell_work(carry, trials=100) == 25 * 256 * 32 + 100 * 600  # the preset's 20 s Carry episodes
+    # the preset's 20 s Carry episodes; its start's two choices at 50 validation trials each and
+    # its eight kept checkpoints (every 5th of 40) at 100 each
+    assert cell_work(carry, trials=100) == 40 * 256 * 32 + (100 + 2 * 50 + 8 * 100) * 600
     broken = dataclasses.replace(carry, overrides=(*carry.overrides, "train.no_such_key=1"))
     assert cell_work(broken, trials=100) is None  # counted as a mean cell; the run itself says why

@@ -44,6 +44,7 @@ from detach.config_validate import Builder
 from detach.run_contract import eval_file
 from detach.runs.folder import RunFolder, find_runs
 from detach.runs.sweep_eta import SweepClock
+from detach.train.checkpoints import kept_iterations
 from detach.yaml_source import ConfigError
 
 PhaseB = Literal["zero_shot", "composition"]
@@ -520,14 +521,22 @@ class _Work:
 
 
 def cell_work(cell: Cell, trials: int) -> float | None:
-    """Env steps the cell simulates: its training samples plus its evaluations' trials at full
-    episode length (None when its config does not resolve; the run will say why)."""
+    """Env steps the cell simulates: its training samples plus, at full episode length, its
+    evaluations' trials and the validation trials of its choices (the start's
+    `init_action_mean_choices`, and each checkpoint it keeps under `select_checkpoint_trials`).
+    None when its config does not resolve; the run will say why."""
     try:
         cfg = resolve(cell.task, cell.model, cell.overrides, seed=cell.seed, presets=cell.presets)
     except (ConfigError, OSError):
         return None
-    samples = cfg.train.max_iterations * cfg.train.num_steps_per_env * cfg.sim.num_envs
-    return float(samples + len(cell.evals) * trials * cfg.env.episode_length)
+    t = cfg.train
+    samples = t.max_iterations * t.num_steps_per_env * cfg.sim.num_envs
+    episodes = len(cell.evals) * trials + len(t.init_action_mean_choices) * t.init_choice_trials
+    if t.select_checkpoint_trials:
+        saved = [it for it in range(t.max_iterations) if (it + 1) % t.save_interval == 0 or it == t.max_iterations - 1]
+        kept = kept_iterations(saved, t.keep_checkpoints.last, t.keep_checkpoints.every)
+        episodes += len(kept) * t.select_checkpoint_trials
+    return float(samples + episodes * cfg.env.episode_length)
 
 
 def run_sweep(sweep_path: Path, out: Path, jobs: int = 1, quick: bool = False, device: str = "cpu",
