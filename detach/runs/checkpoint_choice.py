@@ -20,8 +20,9 @@ from detach.train.checkpoints import UnreadableCheckpoint
 
 def select_checkpoint(run: RunFolder, cfg: RunConfig, device: str) -> str:
     """Score each checkpoint in `run` on `train.select_checkpoint_trials` validation trials,
-    write selection.json naming the best (highest LH mean; on a tie the newest, the policy without a selection) and return
-    the log line. Unreadable checkpoints are left out, with a note in the line."""
+    write selection.json naming the best (highest LH mean; on a tie the newest, the policy
+    without a selection) and return the log line. Unreadable checkpoints are left out, with a
+    note in the line."""
     trials = cfg.train.select_checkpoint_trials
     env = validation_env(cfg, trials, device)
     scores: dict[int, float] = {}

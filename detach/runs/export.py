@@ -53,9 +53,10 @@ class Exported:
 
 def export_run(run_dir: Path, checkpoint: int | None = None, fmt: str = "onnx",
                out: Path | None = None, *, output: Path | None = None) -> Exported:
-    """Export checkpoint `checkpoint` (an iteration; None: the run's policy, `RunFolder.policy_checkpoint`) of a run as
-    `fmt` (onnx | jit) to `out` (default <run>/exported/policy_<iteration>.onnx|.pt). ConfigError
-    for a missing run, checkpoint or extra; RuntimeError when the file disagrees with torch."""
+    """Export checkpoint `checkpoint` (an iteration; None: the run's policy,
+    `RunFolder.policy_checkpoint`) of a run as `fmt` (onnx | jit) to `out` (default
+    <run>/exported/policy_<iteration>.onnx|.pt). ConfigError for a missing run, checkpoint or
+    extra; RuntimeError when the file disagrees with torch."""
     out = out if out is not None else output
     if fmt not in EXPORT_FORMATS:
         raise ConfigError(f"--format: expected one of {', '.join(EXPORT_FORMATS)}, found '{fmt}'")
