@@ -44,7 +44,7 @@ from detach.config_validate import Builder
 from detach.run_contract import eval_file
 from detach.runs.folder import RunFolder, find_runs
 from detach.runs.sweep_eta import SweepClock
-from detach.train.checkpoints import kept_iterations
+from detach.train.checkpoints import kept_iterations, saves_after
 from detach.yaml_source import ConfigError
 
 PhaseB = Literal["zero_shot", "composition"]
@@ -533,7 +533,7 @@ def cell_work(cell: Cell, trials: int) -> float | None:
     samples = t.max_iterations * t.num_steps_per_env * cfg.sim.num_envs
     episodes = len(cell.evals) * trials + len(t.init_action_mean_choices) * t.init_choice_trials
     if t.select_checkpoint_trials:
-        saved = [it for it in range(t.max_iterations) if (it + 1) % t.save_interval == 0 or it == t.max_iterations - 1]
+        saved = [it for it in range(t.max_iterations) if saves_after(it, t.max_iterations, t.save_interval)]
         kept = kept_iterations(saved, t.keep_checkpoints.last, t.keep_checkpoints.every)
         episodes += len(kept) * t.select_checkpoint_trials
     return float(samples + episodes * cfg.env.episode_length)

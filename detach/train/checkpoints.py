@@ -119,6 +119,12 @@ def write_checkpoint(path: Path, state: dict[str, Any]) -> None:
 
 
 # ------------------------------------------------------------------------------ retention
+def saves_after(iteration: int, total: int, interval: int) -> bool:
+    """Whether training saves a checkpoint after 0-based `iteration` of `total`: every
+    `interval`-th and the last (a stop signal saves too, `DetachRunner.learn`)."""
+    return (iteration + 1) % interval == 0 or iteration == total - 1
+
+
 def kept_iterations(iterations: list[int], last: int, every: int) -> set[int]:
     """Iterations whose checkpoints retention keeps: the newest `last` (all when 0), every one
     with (iteration + 1) % every == 0 (none when 0), and always the newest."""

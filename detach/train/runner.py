@@ -43,7 +43,7 @@ from detach.run_contract import PROVENANCE_FILE, checkpoint_file, replay_file
 from detach.train.amp_ppo import REPLAY_KEY
 from detach.train.checkpoints import (
     CheckpointError, capture_rng, check_model, describe_mismatch, first_line, prune_checkpoints, read_checkpoint,
-    read_sidecar, replay_path, restore_rng, write_checkpoint,
+    read_sidecar, replay_path, restore_rng, saves_after, write_checkpoint,
 )
 from detach.train.schedule import stage_at
 
@@ -352,7 +352,7 @@ class DetachRunner(OnPolicyRunner):
             if self.on_iteration is not None:
                 self.on_iteration(it, metrics)
             last = it == end - 1
-            if (it + 1) % self.cfg["save_interval"] == 0 or last or self._stop_signal:
+            if saves_after(it, end, self.cfg["save_interval"]) or self._stop_signal:
                 saved = self.save_checkpoint()
                 if saved is not None:
                     self.logger.save_model(str(saved), it)  # W&B uploads it, as rsl-rl's learn does
