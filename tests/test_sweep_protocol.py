@@ -120,15 +120,17 @@ def test_sweeps_share_the_cells_of_a_common_stage(tmp_path: Path) -> None:
     lh1 = [c for c in comp_cells.values() if c.stage == "lh1"]
     assert {c.model for c in lh1} == {"cml_incremental", "tokenhsi_adapt", "detach"}
     assert not {c.key for c in lh1} & keys_laptop
-    assert all("train.max_iterations=75" in c.overrides and "sim.num_envs=256" in c.overrides for c in lh1)
     assert all("env.subtask_start_prob=0.5" in c.overrides for c in lh1)  # composition only
+    for c in lh1:  # each skill taught: the model's own Carry cell, the oracle the rest
+        carry = next(k for k in comp_cells if k.startswith(f"carry/{c.model.split('_')[0]}/"))
+        assert c.teachers == (("follow", "oracle"), ("carry", carry), ("climb", "oracle"), ("sit", "oracle"))
     assert not any("subtask_start_prob" in o for c in cells(laptop, ROOT / "configs/sweeps/table1.yaml")
                    for o in c.overrides)
     # a stage started from another run weighs the value loss 0.1 (a shared trunk's policy moved
     # with the new task's large value loss); the stage trained from scratch keeps rsl-rl's 1
     # Carry and LH1 also train on the task reward alone on the laptop (the style discriminator
     # saturates on the puppet); the zero-shot LH1 stage is 40 iterations and keeps each
-    # checkpoint it saves, the composition stage 75 (its last override wins)
+    # checkpoint it saves, the composition stage 100 (its last override wins)
     for c in cells(laptop, ROOT / "configs/sweeps/table1.yaml"):
         assert ("train.value_loss_coef=0.1" in c.overrides) == (c.stage != "follow"), c.key
         assert ("train.amp.style_reward_weight=0" in c.overrides) == (c.stage != "follow"), c.key
@@ -136,8 +138,9 @@ def test_sweeps_share_the_cells_of_a_common_stage(tmp_path: Path) -> None:
         assert resolved.train.keep_checkpoints.every % resolved.train.save_interval == 0, c.key
         if c.stage == "lh1":
             assert resolved.train.max_iterations == 40 and resolved.train.amp.style_reward_weight == 0
-    assert all(resolve(c.task, c.model, c.overrides, c.seed, presets=c.presets).train.max_iterations == 75
-               for c in lh1)
+    for c in lh1:  # the composition stage's own settings win over the laptop LH1 stage's
+        train = resolve(c.task, c.model, c.overrides, c.seed, presets=c.presets).train
+        assert (train.max_iterations, train.save_interval, train.learning_rate) == (100, 5, 1.0e-4)
 
 
 def test_a_second_process_on_the_same_sweep_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -190,6 +193,30 @@ def test_bad_sweeps_are_one_line_errors(tmp_path: Path, capsys: pytest.CaptureFi
     assert "mini.yaml" in err
     assert ("presets.loop.extends: expected another preset of this sweep (laptop, laptop_composition, quick, tiny), "
             "found 'loop'") in err
+
+
+def test_a_preset_names_each_skills_teacher_by_stage(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    taught = ("  taught:\n    extends: tiny\n    phase_b: composition\n"
+              "    stage_teachers: {lh1: {follow: follow, carry: carry, sit: oracle}}\n")
+    sweep = write_sweep(tmp_path, extra=taught)
+    plain = {c.stage: c for c in cells(load_sweep(sweep, preset="tiny"), sweep)}
+    ones = {c.stage: c for c in cells(load_sweep(sweep, preset="taught"), sweep)}
+    assert ones["lh1"].teachers == (("follow", ones["follow"].key), ("carry", ones["carry"].key), ("sit", "oracle"))
+    assert ones["carry"].key == plain["carry"].key and ones["lh1"].key != plain["lh1"].key  # phase A shared
+    out = tmp_path / "runs"
+    assert cli.main(["--sweep", str(sweep), "--preset", "taught", "--out", str(out)]) == 0
+    runs = {r.status().cell.split("/")[0]: r for r in find_runs(out)}
+    teachers = runs["lh1"].config().train.teachers  # pinned to each teacher run's policy file
+    assert teachers == {"follow": str(runs["follow"].path.resolve() / "checkpoints" / "model_1.pt"),
+                        "carry": str(runs["carry"].path.resolve() / "checkpoints" / "model_1.pt"), "sit": "oracle"}
+    for bad, said in [("{lh1: {sit: lh1}}", "presets.bad.stage_teachers.lh1.sit: expected 'oracle' or a stage on "
+                                            "lh1's init_from chain (carry, follow), found 'lh1'"),
+                      ("{lh1: {sitt: oracle}}", "presets.bad.stage_teachers.lh1.sitt: unknown skill 'sitt'"),
+                      ("{lhx: {sit: oracle}}", "presets.bad.stage_teachers.lhx: unknown stage")]:
+        sweep = write_sweep(tmp_path, extra=f"  bad: {{extends: tiny, stage_teachers: {bad}}}\n")
+        assert cli.main(["--sweep", str(sweep), "--preset", "bad", "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and said in err[0], err
 
 
 def test_init_from_refuses_another_architecture_naming_both_models(tmp_path: Path,

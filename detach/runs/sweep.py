@@ -6,12 +6,14 @@ run of an earlier stage (`init_from: <stage>`: same model and seed; `train.init_
 overrides; `eval` says on which tasks each stage's runs are evaluated. The two readings of the
 paper's phase B (`phase_b: zero_shot | composition`, docs/PROTOCOL.md) select per-stage
 overrides and model substitutions (`zero_shot:` / `composition:` in a stage). A preset
-(`--preset NAME`, `--quick` = `--preset quick`) replaces seeds and trials and adds overrides.
+(`--preset NAME`, `--quick` = `--preset quick`) replaces seeds and trials, adds overrides, and
+may give a stage's cells teachers (`stage_teachers`: per skill, the run of an earlier stage on
+its `init_from` chain, or the scripted oracle; `train.teachers`).
 
 Every cell (stage x model x seed) is an ordinary run folder whose status.json carries the cell
 key `<stage>/<model>/s<seed>/<digest>`; the digest covers everything that defines the run
-(task, model, seed, overrides, presets, the parent cell), so sweeps that share a stage (the
-phase-A runs of Tables I-III) share its runs. Re-running a sweep skips finished cells, runs
+(task, model, seed, overrides, presets, the parent and teacher cells), so sweeps that share a
+stage (the phase-A runs of Tables I-III) share its runs. Re-running a sweep skips finished cells, runs
 the evaluations a finished cell still lacks, and resumes interrupted or failed ones from their
 last checkpoint. Cells run in dependency order on a local pool or as Ray tasks; a lock per
 sweep file keeps two processes from running one sweep, and a lock per cell keeps two sweeps
@@ -45,6 +47,7 @@ from detach.run_contract import eval_file
 from detach.runs.folder import RunFolder, find_runs
 from detach.runs.sweep_eta import SweepClock
 from detach.train.checkpoints import kept_iterations, saves_after
+from detach.train.teachers import ORACLE
 from detach.yaml_source import ConfigError
 
 PhaseB = Literal["zero_shot", "composition"]
@@ -82,6 +85,10 @@ class PresetCfg:
     """Added to every cell."""
     stage_overrides: dict[str, tuple[str, ...]] = field(default_factory=dict)
     """Added to the cells of one stage (e.g. its iterations)."""
+    stage_teachers: dict[str, dict[str, str]] = field(default_factory=dict)
+    """Stage -> skill -> its teacher in that stage's cells (`train.teachers`): `oracle`, or a
+    stage on the stage's `init_from` chain, whose run of the same model and seed teaches (it is
+    finished before the cell starts, as the parent is)."""
     config_presets: tuple[str, ...] = ()
     """configs/presets/ files merged into every cell (`detach-run --preset`)."""
     phase_b: PhaseB | None = None
@@ -117,6 +124,8 @@ class Cell:
     """Key of the cell this one starts from."""
     evals: tuple[Path, ...]
     key: str
+    teachers: tuple[tuple[str, str], ...] = ()
+    """(skill, key of the ancestor cell that teaches it, or `oracle`)."""
 
 
 def task_file(sweep_path: Path, name: str) -> Path:
@@ -162,10 +171,40 @@ def load_sweep(path: Path, quick: bool = False, preset: str | None = None) -> Sw
         unknown = [s for s in p.stage_overrides if s not in names]
         if unknown:
             raise builder.error(("presets", preset, "stage_overrides", unknown[0]), "unknown stage")
+        _check_teachers(sweep, p, preset, builder)
         sweep = replace(sweep, seeds=p.seeds or sweep.seeds, eval_trials=p.eval_trials or sweep.eval_trials,
                         overrides=(*sweep.overrides, *p.overrides), phase_b=p.phase_b or sweep.phase_b,
                         presets={**sweep.presets, preset: p}, preset=preset)
     return sweep
+
+
+def _ancestors(sweep: SweepCfg, stage: str) -> list[str]:
+    """The stages on `stage`'s `init_from` chain, nearest first."""
+    by_name = {s.name: s for s in sweep.stages}
+    chain, at = [], by_name[stage].init_from
+    while at is not None:
+        chain.append(at)
+        at = by_name[at].init_from
+    return chain
+
+
+def _check_teachers(sweep: SweepCfg, preset: PresetCfg, name: str, builder: Builder) -> None:
+    """Each stage teacher names a stage of the sweep, a skill, and `oracle` or an ancestor stage."""
+    from detach.skills import canonical_name  # the runs layer may read the registry
+
+    for stage, teachers in preset.stage_teachers.items():
+        where = ("presets", name, "stage_teachers", stage)
+        if stage not in {s.name for s in sweep.stages}:
+            raise builder.error(where, "unknown stage")
+        ancestors = _ancestors(sweep, stage)
+        for skill, source in teachers.items():
+            try:
+                canonical_name(skill)
+            except ValueError as exc:
+                raise builder.error((*where, skill), str(exc)) from None
+            if source != ORACLE and source not in ancestors:
+                raise builder.error((*where, skill), f"expected '{ORACLE}' or a stage on {stage}'s init_from chain "
+                                                     f"({', '.join(ancestors) or 'none'}), found {source!r}")
 
 
 def _resolved_preset(sweep: SweepCfg, name: str, builder: Builder, seen: tuple[str, ...] = ()) -> PresetCfg:
@@ -179,6 +218,8 @@ def _resolved_preset(sweep: SweepCfg, name: str, builder: Builder, seen: tuple[s
     base = _resolved_preset(sweep, p.extends, builder, (*seen, name))
     return PresetCfg(None, p.seeds or base.seeds, p.eval_trials or base.eval_trials, (*base.overrides, *p.overrides),
                      {**base.stage_overrides, **{k: (*base.stage_overrides.get(k, ()), *v) for k, v in p.stage_overrides.items()}},
+                     {**base.stage_teachers,
+                      **{k: {**base.stage_teachers.get(k, {}), **v} for k, v in p.stage_teachers.items()}},
                      (*base.config_presets, *p.config_presets), p.phase_b or base.phase_b)
 
 
@@ -200,12 +241,17 @@ def cells(sweep: SweepCfg, sweep_path: Path) -> list[Cell]:
                              *(preset.stage_overrides.get(stage.name, ()) if preset else ()))
                 presets = preset.config_presets if preset else ()
                 trained = reading.models.get(model, model)
-                digest = _digest({"task": task.name, "model": trained, "seed": seed, "overrides": list(overrides),
-                                  "presets": list(presets), "parent": parent.key if parent else None})
+                named = preset.stage_teachers.get(stage.name, {}) if preset else {}
+                teachers = tuple((skill, source if source == ORACLE else out[(source, model, seed)].key)
+                                 for skill, source in named.items())
+                defining = {"task": task.name, "model": trained, "seed": seed, "overrides": list(overrides),
+                            "presets": list(presets), "parent": parent.key if parent else None}
+                if teachers:  # only then: the digests of cells without teachers stay what they were
+                    defining["teachers"] = [list(t) for t in teachers]
                 evals = tuple(task_file(sweep_path, t) for t in sweep.eval.get(stage.name, ()))
                 out[(stage.name, model, seed)] = Cell(stage.name, task, trained, seed, overrides, presets,
                                                       parent.key if parent else None, evals,
-                                                      f"{stage.name}/{trained}/s{seed}/{digest}")
+                                                      f"{stage.name}/{trained}/s{seed}/{_digest(defining)}", teachers)
     return list(out.values())
 
 
@@ -238,9 +284,10 @@ def _missing_evals(cell: Cell, run: RunFolder) -> list[Path]:
 
 
 def cell_commands(cell: Cell, previous: RunFolder | None, parent: RunFolder | None, out: Path,
-                  trials: int, device: str) -> list[list[str]]:
+                  trials: int, device: str, teachers: dict[str, RunFolder] | None = None) -> list[list[str]]:
     """The `detach-run` calls that bring the cell to done: none when it is finished and fully
-    evaluated; evaluations only when it is finished; else a resume or a new run."""
+    evaluated; evaluations only when it is finished; else a resume or a new run (`teachers`:
+    the run of each teacher cell, by key; a resumed run keeps the teachers its config pinned)."""
     python = [sys.executable, "-m", "detach.cli"]
     own = any(t.stem == cell.task.stem for t in cell.evals)
     others = [arg for t in cell.evals if t.stem != cell.task.stem for arg in ("--eval-on", str(t))]
@@ -253,10 +300,15 @@ def cell_commands(cell: Cell, previous: RunFolder | None, parent: RunFolder | No
         if previous.latest_checkpoint() is not None:
             return [[*python, "--resume", str(previous.path), *common, *others, *([] if own else ["--no-eval"])]]
     init = [f"train.init_from={parent.path.resolve()}"] if parent is not None else []
+    taught = []
+    for skill, source in cell.teachers:
+        if source != ORACLE and (teachers is None or source not in teachers):
+            raise ConfigError(f"cell {cell.key}: its {skill} teacher, cell {source}, has no run in {out}")
+        taught.append(f"+train.teachers.{skill}={source if source == ORACLE else teachers[source].path.resolve()}")
     presets = [arg for p in cell.presets for arg in ("--preset", p)]
     return [[*python, str(cell.task), "--model", cell.model, "--seed", str(cell.seed), "--runs", str(out),
              "--cell", cell.key, *presets, *common, *others, *([] if own else ["--no-eval"]),
-             *cell.overrides, *init]]
+             *cell.overrides, *init, *taught]]
 
 
 # ------------------------------------------------------------------------------- locks
@@ -512,7 +564,8 @@ class _Work:
                 said = True
             time.sleep(OWNER_POLL_S)
         parent = runs.get(self.cell.parent) if self.cell.parent else None
-        return cell_commands(self.cell, runs.get(self.cell.key), parent, self.out, self.trials, self.device)
+        teachers = {key: runs[key] for _, key in self.cell.teachers if key in runs}
+        return cell_commands(self.cell, runs.get(self.cell.key), parent, self.out, self.trials, self.device, teachers)
 
     def __call__(self) -> tuple[int, str]:
         """Run the cell under its lock: a second sweep that reaches it waits, then finds it done."""
