@@ -79,3 +79,9 @@ def test_ablation_table_rows() -> None:
     assert md[2] == "| Method | EGR | SGR | LH (mean) | LH (chain) | n |"
     assert md[4].startswith("| A1 (w/o env encoder) | 0.80 |")
     assert md[5].startswith("| DETACH (ours) | 1.00 | 0.500 |")  # SGR "reported": mean(climb, sit) / 2
+
+
+def test_the_composition_readings_substitutes_are_named_beside_their_baselines() -> None:
+    ok = [1, 1, 1, 1]
+    results = [_evals("lh1", model, LH1, [ok], [True]) for model in ("detach", "tokenhsi_adapt", "cml_incremental")]
+    assert [r[0] for r in skills_table(results).rows] == ["CML (incremental)", "TokenHSI (adapters)", "DETACH (ours)"]

@@ -30,9 +30,11 @@ from detach.run_contract import SGR_VARIANTS, EvalResult
 from detach.skills import canonical_name, display_name, skill_names
 
 METHOD_NAMES = {"cml": "CML", "tokenhsi": "TokenHSI", "detach": "DETACH (ours)",
+                "cml_incremental": "CML (incremental)", "tokenhsi_adapt": "TokenHSI (adapters)",
                 "ablation_a1": "A1 (w/o env encoder)", "ablation_a2": "A2 (w/o self encoder)",
                 "mlp": "MLP"}
-METHOD_ORDER = ["mlp", "cml", "tokenhsi", "ablation_a1", "ablation_a2", "detach"]
+"""Row names; the composition reading's substitutes name the baseline whose mechanism they are."""
+METHOD_ORDER = ["mlp", "cml", "cml_incremental", "tokenhsi", "tokenhsi_adapt", "ablation_a1", "ablation_a2", "detach"]
 PAPER_SKILLS = (*LEARNED_SKILLS, *NOVEL_SKILLS)
 LH_COLUMNS = [("follow", 0), ("carry", 0), ("follow", 1), ("climb", 0), ("sit", 0)]
 """Paper's Table II columns: (skill, occurrence of that skill in the plan)."""
