@@ -13,11 +13,11 @@ its `init_from` chain, or the scripted oracle; `train.teachers`).
 Every cell (stage x model x seed) is an ordinary run folder whose status.json carries the cell
 key `<stage>/<model>/s<seed>/<digest>`; the digest covers everything that defines the run
 (task, model, seed, overrides, presets, the parent and teacher cells), so sweeps that share a
-stage (the phase-A runs of Tables I-III) share its runs. Re-running a sweep skips finished cells, runs
-the evaluations a finished cell still lacks, and resumes interrupted or failed ones from their
-last checkpoint. Cells run in dependency order on a local pool or as Ray tasks; a lock per
-sweep file keeps two processes from running one sweep, and a lock per cell keeps two sweeps
-from running one cell at the same time (the second waits for the first). Locks are `flock`s on
+stage (the phase-A runs of Tables I-III) share its runs. Re-running a sweep skips finished
+cells, runs the evaluations a finished cell still lacks, and resumes interrupted or failed ones
+from their last checkpoint. Cells run in dependency order on a local pool or as Ray tasks; a
+lock per sweep file keeps two processes from running one sweep, and a lock per cell keeps two
+sweeps from running one cell at the same time (the second waits for the first). Locks are `flock`s on
 files under `<runs>/.locks/`: released when a process dies, and local to one machine unless the
 runs folder's file system supports them across machines.
 """
@@ -46,6 +46,7 @@ from detach.config_validate import Builder
 from detach.run_contract import eval_file
 from detach.runs.folder import RunFolder, find_runs
 from detach.runs.sweep_eta import SweepClock
+from detach.skills import canonical_name
 from detach.train.checkpoints import kept_iterations, saves_after
 from detach.train.teachers import ORACLE
 from detach.yaml_source import ConfigError
@@ -190,8 +191,6 @@ def _ancestors(sweep: SweepCfg, stage: str) -> list[str]:
 
 def _check_teachers(sweep: SweepCfg, preset: PresetCfg, name: str, builder: Builder) -> None:
     """Each stage teacher names a stage of the sweep, a skill, and `oracle` or an ancestor stage."""
-    from detach.skills import canonical_name  # the runs layer may read the registry
-
     for stage, teachers in preset.stage_teachers.items():
         where = ("presets", name, "stage_teachers", stage)
         if stage not in {s.name for s in sweep.stages}:
