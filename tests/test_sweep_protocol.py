@@ -219,6 +219,42 @@ def test_a_preset_names_each_skills_teacher_by_stage(tmp_path: Path, capsys: pyt
         assert len(err) == 1 and said in err[0], err
 
 
+def test_a_preset_adds_a_stage_that_takes_over_the_evaluations_of_the_one_it_continues(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    more = ("  more:\n    extends: tiny\n    phase_b: composition\n"
+            f"    stages: [{{name: lh1_more, task: {ROOT / 'configs/tasks/lh1.yaml'}, init_from: lh1}}]\n"
+            "    stage_overrides: {lh1_more: [train.max_iterations=1]}\n"
+            "    stage_teachers: {lh1_more: {follow: lh1, sit: oracle}}\n")
+    sweep = write_sweep(tmp_path, extra=more)
+    assert [s.name for s in load_sweep(sweep, preset="tiny").stages] == ["follow", "carry", "lh1"]
+    out = tmp_path / "runs"
+    assert cli.main(["--sweep", str(sweep), "--preset", "more", "--out", str(out)]) == 0
+    runs = {r.status().cell.split("/")[0]: r for r in find_runs(out)}
+    lh1, more = runs["lh1"], runs["lh1_more"]
+    assert sorted(p.name for p in more.path.glob("eval*.json")) == ["eval.json", "eval_lh2.json"]
+    assert not list(lh1.path.glob("eval*.json"))  # its evaluations went to the stage continuing it
+    config = more.config()
+    assert config.train.max_iterations == 1 and config.train.init_from.startswith(str(lh1.path.resolve()))
+    assert config.train.teachers == {"follow": str(lh1.path.resolve() / "checkpoints" / "model_1.pt"), "sit": "oracle"}
+    capsys.readouterr()
+    assert cli.main(["table", str(sweep), "--preset", "more", "--runs", str(out), "--out", str(tmp_path / "t")]) == 0
+    assert "(0 evaluations" not in capsys.readouterr().out
+    assert (tmp_path / "t" / "mini.csv").read_text().count("\n") == 2  # header + the continued policy's row
+    lh1_task = ROOT / "configs/tasks/lh1.yaml"
+    for bad, said in [(f"[{{name: lh1, task: {lh1_task}, init_from: carry}}]",
+                       "presets.bad.stages[0].name: expected a new stage name, found 'lh1'"),
+                      (f"[{{name: lh1_more, task: {lh1_task}}}]",
+                       "presets.bad.stages[0].init_from: expected the stage this one continues (follow, carry, lh1), "
+                       "found None"),
+                      (f"[{{name: lh1_more, task: {lh1_task}, init_from: sit}}]",
+                       "presets.bad.stages[0].init_from: expected the stage this one continues (follow, carry, lh1), "
+                       "found 'sit'")]:
+        sweep = write_sweep(tmp_path, extra=f"  bad: {{extends: tiny, stages: {bad}}}\n")
+        assert cli.main(["--sweep", str(sweep), "--preset", "bad", "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and said in err[0], err
+
+
 def test_init_from_refuses_another_architecture_naming_both_models(tmp_path: Path,
                                                                     capsys: pytest.CaptureFixture[str]) -> None:
     follow = str(ROOT / "configs/tasks/follow.yaml")

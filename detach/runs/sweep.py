@@ -8,7 +8,8 @@ paper's phase B (`phase_b: zero_shot | composition`, docs/PROTOCOL.md) select pe
 overrides and model substitutions (`zero_shot:` / `composition:` in a stage). A preset
 (`--preset NAME`, `--quick` = `--preset quick`) replaces seeds and trials, adds overrides, and
 may give a stage's cells teachers (`stage_teachers`: per skill, the run of an earlier stage on
-its `init_from` chain, or the scripted oracle; `train.teachers`).
+its `init_from` chain, or the scripted oracle; `train.teachers`) and add stages that continue
+a stage (they take over its evaluations).
 
 Every cell (stage x model x seed) is an ordinary run folder whose status.json carries the cell
 key `<stage>/<model>/s<seed>/<digest>`; the digest covers everything that defines the run
@@ -94,6 +95,10 @@ class PresetCfg:
     """configs/presets/ files merged into every cell (`detach-run --preset`)."""
     phase_b: PhaseB | None = None
     """Replaces the sweep's reading of phase B."""
+    stages: tuple[StageCfg, ...] = ()
+    """Stages added after the sweep's, each continuing the stage it starts from (`init_from`,
+    required): it takes over that stage's evaluations, so the tables read the continued policy
+    (e.g. a second LH1 run taught by the first)."""
 
 
 @dataclass(frozen=True)
@@ -169,6 +174,8 @@ def load_sweep(path: Path, quick: bool = False, preset: str | None = None) -> Sw
             raise ConfigError(f"sweep '{sweep.name}' has no preset '{preset}'; presets: "
                               f"{', '.join(sweep.presets) or 'none'}", str(path))
         p = _resolved_preset(sweep, preset, builder)
+        sweep = _with_added_stages(sweep, preset, builder, path)
+        names = [s.name for s in sweep.stages]
         unknown = [s for s in p.stage_overrides if s not in names]
         if unknown:
             raise builder.error(("presets", preset, "stage_overrides", unknown[0]), "unknown stage")
@@ -177,6 +184,31 @@ def load_sweep(path: Path, quick: bool = False, preset: str | None = None) -> Sw
                         overrides=(*sweep.overrides, *p.overrides), phase_b=p.phase_b or sweep.phase_b,
                         presets={**sweep.presets, preset: p}, preset=preset)
     return sweep
+
+
+def _with_added_stages(sweep: SweepCfg, preset: str, builder: Builder, path: Path) -> SweepCfg:
+    """The sweep with the stages of `preset` and of the presets it extends (base first) added,
+    each taking over the evaluations of the stage it continues."""
+    chain, at = [], preset
+    while at is not None:  # `_resolved_preset` has refused loops already
+        chain.append(at)
+        at = sweep.presets[at].extends
+    stages, evals = list(sweep.stages), dict(sweep.eval)
+    for name in reversed(chain):
+        for i, stage in enumerate(sweep.presets[name].stages):
+            where = ("presets", name, "stages", i)
+            names = [s.name for s in stages]
+            if stage.name in names:
+                raise builder.error((*where, "name"), f"expected a new stage name, found {stage.name!r} (stages: "
+                                                      f"{', '.join(names)})")
+            if stage.init_from not in names:
+                raise builder.error((*where, "init_from"), f"expected the stage this one continues ({', '.join(names)}), "
+                                                           f"found {stage.init_from!r}")
+            if not task_file(path, stage.task).exists():
+                raise builder.error((*where, "task"), f"task '{stage.task}' not found ({task_file(path, stage.task)})")
+            stages.append(stage)
+            evals[stage.name] = evals.pop(stage.init_from, ())
+    return replace(sweep, stages=tuple(stages), eval=evals)
 
 
 def _ancestors(sweep: SweepCfg, stage: str) -> list[str]:
@@ -219,7 +251,7 @@ def _resolved_preset(sweep: SweepCfg, name: str, builder: Builder, seen: tuple[s
                      {**base.stage_overrides, **{k: (*base.stage_overrides.get(k, ()), *v) for k, v in p.stage_overrides.items()}},
                      {**base.stage_teachers,
                       **{k: {**base.stage_teachers.get(k, {}), **v} for k, v in p.stage_teachers.items()}},
-                     (*base.config_presets, *p.config_presets), p.phase_b or base.phase_b)
+                     (*base.config_presets, *p.config_presets), p.phase_b or base.phase_b)  # stages: `_with_added_stages`
 
 
 def _digest(parts: dict) -> str:
