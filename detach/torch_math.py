@@ -17,7 +17,11 @@ _INDICES: dict[tuple[tuple[int, ...], torch.device], torch.Tensor] = {}
 def index_on(ids: tuple[int, ...], device: torch.device) -> torch.Tensor:
     """ids as a long tensor on device, made once per device: a Python list as an index is
     copied to the device on every use, and on an accelerator that copy waits for its queue.
-    A plain dict, not `functools.cache`, which `torch.compile` would trace through."""
+    A plain dict, not `functools.cache`, which `torch.compile` would trace through; inside a
+    compiled graph no cache at all: the tensor is the graph's constant, and a cache filled
+    while tracing would fail the graph's guard on the next call (a second compile)."""
+    if torch.compiler.is_compiling():
+        return torch.tensor(ids, dtype=torch.long, device=device)
     out = _INDICES.get((ids, device))
     if out is None:
         out = _INDICES[(ids, device)] = torch.tensor(ids, dtype=torch.long, device=device)
@@ -136,7 +140,10 @@ _CONSTANTS: dict[tuple[int, torch.device, torch.dtype], torch.Tensor] = {}
 
 
 def _constant(table: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
-    """`table` on `like`'s device and dtype, copied once per device and dtype."""
+    """`table` on `like`'s device and dtype, copied once per device and dtype (in a compiled
+    graph: the graph's constant; see `index_on`)."""
+    if torch.compiler.is_compiling():
+        return table.to(like.device, like.dtype)
     key = (id(table), like.device, like.dtype)
     out = _CONSTANTS.get(key)
     if out is None:

@@ -96,7 +96,7 @@ class LHEnv(VecEnv):
         trajectory = TrajectoryReference(self.scene.trajectories, ec.trajectory, self.num_envs,
                                          self.max_episode_length, self.max_transition_steps, self.dt, self.device)
         self.services = SkillServices(cfg, self.scene, raster, trajectory, self.gen, self.device, self.dt,
-                                      self.max_episode_length, self.max_transition_steps)
+                                      self.max_episode_length, self.max_transition_steps, self.num_envs)
         self.resets = ResetSampler(cfg, self.scene, self.model, self.character, self.gen, self.device)
         self.tracker = PlanTracker(self.plan, self.services, self.index, self.resets.rest_z, self.num_envs)
         self.mid_task_skill = self._mid_task_skill(ec.mid_task_init_prob)

@@ -154,9 +154,9 @@ class Carry(Skill):
         self.dyn_slot = torch.full((max(len(objects), 1),), -1, dtype=torch.long, device=self.device)
         for k, i in enumerate(services.scene.dynamic):
             self.dyn_slot[i] = k
-        self.carry_goal: torch.Tensor | None = None
+        self.carry_goal = torch.zeros(services.num_envs, 2, device=self.device)
         """[N, 2] where each env's pelvis takes the box (`goal`), fixed when the carry began."""
-        self.carrying: torch.Tensor | None = None
+        self.carrying = torch.zeros(services.num_envs, dtype=torch.bool, device=self.device)
         """[N] bool: the box was carried at the last `goal` call."""
 
     def distance(self, ctx: SkillContext) -> torch.Tensor:
@@ -173,10 +173,6 @@ class Carry(Skill):
         while the box is carried: a goal that moves with the pelvis (the destination plus the
         current pelvis-to-box offset, which turns with the heading) was chased round in circles
         about 1 m from it (results/laptop/README.md, attempt 14)."""
-        n = ctx.num_envs
-        if self.carry_goal is None or len(self.carry_goal) != n:
-            self.carry_goal = torch.zeros(n, 2, device=self.device)
-            self.carrying = torch.zeros(n, dtype=torch.bool, device=self.device)
         carrying = box_lifted(ctx) | box_at_destination(ctx) | self.held(ctx)
         reach = (ctx.state.root_pos[:, :2] - ctx.obj_pos[:, :2]).norm(dim=-1, keepdim=True)
         back = ctx.obj_pos[:, :2] - ctx.target[:, :2]
@@ -193,8 +189,7 @@ class Carry(Skill):
         return (ctx.held == slot) & (slot >= 0)
 
     def start(self, mask: torch.Tensor, subtask: torch.Tensor, root_xy: torch.Tensor) -> None:
-        if self.carrying is not None:
-            self.carrying &= ~mask
+        self.carrying &= ~mask
 
     def mid_task_start(self, objects, obj_rest, obj_half, target, gen) -> MidTaskStart:
         """One of three starts, drawn per episode: (`APPROACH_SHARE`) standing some way from the

@@ -37,6 +37,8 @@ class SkillServices:
     """Control step, seconds."""
     max_episode_length: int
     max_transition_steps: int
+    num_envs: int
+    """N: a skill's per-env state is made at `bind` (made later, a compiled step would compile twice)."""
 
 
 @dataclass
