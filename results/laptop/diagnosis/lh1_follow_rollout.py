@@ -1,8 +1,9 @@
-"""Where does a policy go in LH1's Follow subtask? Every 30 control steps (8 envs, mean actions):
-the median pelvis XY, its median distance to the path (the success rule's 0.3 m) and to the
-moving reference point, the share of steps on the path so far, and the share still in Follow.
+"""Where does a policy go in LH1's (or another task's) first Follow subtask? Every 30 control
+steps (8 envs, mean actions): the median pelvis XY, its median distance to the path (the success
+rule's 0.3 m) and to the moving reference point, the share of steps on the path so far, and the
+share still in Follow.
 
-    python results/laptop/diagnosis/lh1_follow_rollout.py RUN_DIR CHECKPOINT.pt
+    python results/laptop/diagnosis/lh1_follow_rollout.py RUN_DIR CHECKPOINT.pt [TASK, default lh1]
 """
 import sys
 from pathlib import Path
@@ -19,7 +20,7 @@ from detach.train.setup import seed_everything
 NUM_ENVS = 8
 
 run = RunFolder(Path(sys.argv[1]))
-cfg = eval_config(run.config(), Path("configs/tasks/lh1.yaml"))
+cfg = eval_config(run.config(), Path(f"configs/tasks/{sys.argv[3] if len(sys.argv) > 3 else 'lh1'}.yaml"))
 seed_everything(1)
 env = make_env(cfg, num_envs=NUM_ENVS, device="cpu", eval_mode=True)
 actor, _ = load_policy(cfg, env, Path(sys.argv[2]))
