@@ -148,6 +148,12 @@ def task_file(sweep_path: Path, name: str) -> Path:
         return beside  # the caller names the missing file with the sweep's file and line
 
 
+def _require_task(builder: Builder, path: Path, where: tuple, task: str) -> None:
+    """Refuse a task name of the sweep file `path` (at key `where`) that names no task file."""
+    if not task_file(path, task).exists():
+        raise builder.error(where, f"task '{task}' not found ({task_file(path, task)})")
+
+
 def load_sweep(path: Path, quick: bool = False, preset: str | None = None) -> SweepCfg:
     """The sweep of `path` with `preset` applied (`quick` = preset "quick")."""
     data, prov = load_merged(Path(path))
@@ -160,14 +166,12 @@ def load_sweep(path: Path, quick: bool = False, preset: str | None = None) -> Sw
         if stage.init_from is not None and stage.init_from not in names[:i]:
             raise builder.error(("stages", i, "init_from"), f"expected an earlier stage ({', '.join(names[:i]) or 'none'}), "
                                                             f"found {stage.init_from!r}")
-        if not task_file(path, stage.task).exists():
-            raise builder.error(("stages", i, "task"), f"task '{stage.task}' not found ({task_file(path, stage.task)})")
+        _require_task(builder, path, ("stages", i, "task"), stage.task)
     for stage_name, tasks in sweep.eval.items():
         if stage_name not in names:
             raise builder.error(("eval", stage_name), f"unknown stage; stages: {', '.join(names)}")
         for task in tasks:
-            if not task_file(path, task).exists():
-                raise builder.error(("eval", stage_name), f"task '{task}' not found ({task_file(path, task)})")
+            _require_task(builder, path, ("eval", stage_name), task)
     preset = "quick" if quick and preset is None else preset
     if preset is not None:
         if preset not in sweep.presets:
@@ -204,8 +208,7 @@ def _with_added_stages(sweep: SweepCfg, preset: str, builder: Builder, path: Pat
             if stage.init_from not in names:
                 raise builder.error((*where, "init_from"), f"expected the stage this one continues ({', '.join(names)}), "
                                                            f"found {stage.init_from!r}")
-            if not task_file(path, stage.task).exists():
-                raise builder.error((*where, "task"), f"task '{stage.task}' not found ({task_file(path, stage.task)})")
+            _require_task(builder, path, (*where, "task"), stage.task)
             stages.append(stage)
             evals[stage.name] = evals.pop(stage.init_from, ())
     return replace(sweep, stages=tuple(stages), eval=evals)
