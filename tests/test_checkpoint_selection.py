@@ -104,3 +104,20 @@ def test_an_unreadable_checkpoint_is_left_out_and_a_broken_selection_is_an_error
     err = capsys.readouterr().err
     assert "train.select_checkpoint_trials" in err, err
     assert not (tmp_path / "bad").exists()
+
+
+def test_a_later_stage_starts_from_the_policy_its_evaluation_read_when_the_newest_file_is_broken(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A disk that filled leaves a truncated newest checkpoint: the run's evaluation falls back
+    to the previous file, and `train.init_from` of the next stage must start from that same
+    file, not stop on the broken one."""
+    source = _train(tmp_path / "runs", "train.max_iterations=2", "--no-eval")
+    (source.checkpoints / "model_1.pt").write_bytes(b"truncated")
+    assert source.policy_checkpoint() == source.checkpoints / "model_0.pt"
+    assert find_init_checkpoint(str(source.path)) == (source.checkpoints / "model_0.pt", source.path)
+    capsys.readouterr()
+    assert cli.main(["train", FOLLOW, "--model", "mlp", "--runs", str(tmp_path / "next"), *TINY,
+                     "train.max_iterations=1", "--no-eval", f"train.init_from={source.path}"]) == 0
+    said = capsys.readouterr().out
+    assert "skipping" in said and "model_1.pt" in said, said
+    assert f"initialised from {source.checkpoints / 'model_0.pt'}" in said, said

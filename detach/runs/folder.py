@@ -267,8 +267,9 @@ class RunFolder:
 
     def checkpoint_files(self) -> list[Path]:
         """Checkpoints (model_<iter>.pt), newest first."""
-        found = [(checkpoint_iteration(p.name), p) for p in self.checkpoints.glob("model_*.pt")]
-        return [p for _it, p in sorted(((it, p) for it, p in found if it is not None), reverse=True)]
+        from detach.train.checkpoints import checkpoint_files
+
+        return checkpoint_files(self.path)
 
     def latest_checkpoint(self) -> Path | None:
         """Checkpoint with the highest iteration number (model_<iter>.pt)."""
@@ -276,39 +277,19 @@ class RunFolder:
         return files[0] if files else None
 
     def usable_checkpoint(self, map_location: str = "cpu", report: Callable[[str], None] = print) -> Path | None:
-        """The newest checkpoint that reads back whole (None when there is none).
+        """The newest checkpoint that reads back whole; training resumes from it
+        (`detach.train.checkpoints.newest_readable_checkpoint`)."""
+        from detach.train.checkpoints import newest_readable_checkpoint
 
-        A truncated or corrupt newest file (a disk that filled, a copy cut short) falls back to
-        the previous one, with a line saying so. A file refused for holding code, or one of
-        another model, is not skipped: CheckpointError, since falling back would hide it."""
-        from detach.train.checkpoints import UnreadableCheckpoint, read_checkpoint
-
-        for path in self.checkpoint_files():
-            try:
-                read_checkpoint(path, map_location)
-            except UnreadableCheckpoint as exc:
-                report(f"skipping {exc}")
-                continue
-            return path
-        return None
+        return newest_readable_checkpoint(self.path, map_location, report)
 
     def policy_checkpoint(self, map_location: str = "cpu", report: Callable[[str], None] = print) -> Path | None:
-        """The run's policy: the checkpoint selection.json chose on validation trials
-        (`train.select_checkpoint_trials`), else the newest that reads back whole. Training
-        resumes from the newest (`usable_checkpoint`) whatever was selected."""
-        from detach.train.checkpoints import CheckpointError, UnreadableCheckpoint, read_checkpoint
+        """The run's policy: the checkpoint chosen on validation trials, else the newest that
+        reads back whole (`detach.train.checkpoints.run_policy_checkpoint`). Training resumes
+        from the newest (`usable_checkpoint`) whatever was selected."""
+        from detach.train.checkpoints import run_policy_checkpoint
 
-        try:
-            chosen = selected_checkpoint(self.path)
-        except ContractError as exc:
-            raise CheckpointError(str(exc)) from None
-        if chosen is not None:
-            try:
-                read_checkpoint(chosen, map_location)
-                return chosen
-            except UnreadableCheckpoint as exc:
-                report(f"skipping the selected checkpoint: {exc}")
-        return self.usable_checkpoint(map_location, report)
+        return run_policy_checkpoint(self.path, map_location, report)
 
     def clear_selection(self) -> None:
         """Forget the chosen checkpoint (a resumed run trains on and chooses again)."""

@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import pickle
 import random
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -197,23 +198,60 @@ def restore_rng(state: dict[str, Any], env_generator: torch.Generator | None = N
         env_generator.set_state(state["env"].cpu())
 
 
-def find_init_checkpoint(source: str) -> tuple[Path, Path | None]:
+def checkpoint_files(run_dir: Path) -> list[Path]:
+    """A run's checkpoints (model_<iter>.pt), newest first."""
+    found = [(checkpoint_iteration(p.name), p) for p in (Path(run_dir) / CHECKPOINT_DIR).glob("model_*.pt")]
+    return [p for _it, p in sorted(((it, p) for it, p in found if it is not None), reverse=True)]
+
+
+def newest_readable_checkpoint(run_dir: Path, map_location: str | torch.device | None = "cpu",
+                               report: Callable[[str], None] = print) -> Path | None:
+    """The newest checkpoint that reads back whole (None when there is none).
+
+    A truncated or corrupt newest file (a disk that filled, a copy cut short) falls back to
+    the previous one, with a line saying so. A file refused for holding code, or one of
+    another model, is not skipped: CheckpointError, since falling back would hide it."""
+    for path in checkpoint_files(run_dir):
+        try:
+            read_checkpoint(path, map_location)
+        except UnreadableCheckpoint as exc:
+            report(f"skipping {exc}")
+            continue
+        return path
+    return None
+
+
+def run_policy_checkpoint(run_dir: Path, map_location: str | torch.device | None = "cpu",
+                          report: Callable[[str], None] = print) -> Path | None:
+    """A run's policy: the checkpoint selection.json chose on validation trials
+    (`train.select_checkpoint_trials`), else the newest that reads back whole. Every reader of
+    a run's policy (evaluation, play, export, a later stage's `train.init_from`) goes through
+    here, so a later stage starts from the very file the run was evaluated with."""
+    try:
+        chosen = selected_checkpoint(Path(run_dir))
+    except ContractError as exc:
+        raise CheckpointError(str(exc)) from None
+    if chosen is not None:
+        try:
+            read_checkpoint(chosen, map_location)
+            return chosen
+        except UnreadableCheckpoint as exc:
+            report(f"skipping the selected checkpoint: {exc}")
+    return newest_readable_checkpoint(run_dir, map_location, report)
+
+
+def find_init_checkpoint(source: str, report: Callable[[str], None] = print) -> tuple[Path, Path | None]:
     """(checkpoint file, its run folder or None) of `train.init_from`: a run folder (its
-    policy: the checkpoint it selected on validation trials, else its latest) or a checkpoint
-    file."""
+    policy, `run_policy_checkpoint`) or a checkpoint file."""
     path = Path(source)
     if path.is_dir():
         try:
-            chosen = selected_checkpoint(path)
-        except ContractError as exc:
+            chosen = run_policy_checkpoint(path, "cpu", report)
+        except CheckpointError as exc:
             raise ConfigError(f"train.init_from: {exc}") from None
-        if chosen is not None:
-            return chosen, path
-        found = sorted((it, p) for p in (path / CHECKPOINT_DIR).glob("*.pt")
-                       if (it := checkpoint_iteration(p.name)) is not None)
-        if not found:
-            raise ConfigError(f"train.init_from: the run folder {path} has no checkpoint")
-        return found[-1][1], path
+        if chosen is None:
+            raise ConfigError(f"train.init_from: the run folder {path} has no readable checkpoint")
+        return chosen, path
     if path.is_file():
         run = path.parent.parent
         return path, run if (run / CONFIG_FILE).is_file() else None

@@ -114,7 +114,7 @@ def complete_run_config(cfg: RunConfig) -> RunConfig:
                            "train.init_from, and this run starts from scratch (model.init_noise_std sets its std)")
     if cfg.train.init_from:
         try:
-            find_init_checkpoint(cfg.train.init_from)
+            find_init_checkpoint(cfg.train.init_from, report=lambda _line: None)  # said when loaded
         except ConfigError as exc:
             raise origin.error(("train", "init_from"), str(exc).removeprefix("train.init_from: ")) from None
     if pinned != cfg.train.teachers:  # config.yaml records the checkpoint each teacher is, absolute
