@@ -191,3 +191,32 @@ def test_status_is_recorded_even_when_no_new_file_fits(tmp_path: Path, monkeypat
     run.set_state("failed", error="No space left on device")
     assert run.status().state == "failed" and run.status().iteration == 7
     assert json.loads(run.status_path.read_text())["error"] == "No space left on device"
+
+
+def test_a_run_says_when_the_disk_is_about_to_fill_before_a_save_fails(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """A runs folder that grew to fill the disk stopped a run mid-write with no word before:
+    now each save checks the room left and says so, once, while there is time to act."""
+    roomy = shutil.disk_usage(tmp_path)
+    assert cli.main(["train", FOLLOW, "--model", "mlp", "--runs", str(tmp_path / "ok"), *TINY,
+                     "train.max_iterations=3", "train.save_interval=1", "--no-eval"]) == 0
+    assert "room for about" not in capsys.readouterr().out  # this disk has room
+
+    free = {"bytes": 200 * 2**20}  # 200 MB: a few saves of the tiny run (~60 MB each) fit
+
+    def nearly_full(path: Path) -> object:
+        return roomy._replace(free=free["bytes"])
+
+    monkeypatch.setattr(checkpoint_io.shutil, "disk_usage", nearly_full)
+    assert cli.main(["train", FOLLOW, "--model", "mlp", "--runs", str(tmp_path / "low"), *TINY,
+                     "train.max_iterations=4", "train.save_interval=1", "--no-eval"]) == 0
+    said = capsys.readouterr().out
+    warnings = [line for line in said.splitlines() if "room for about" in line]
+    assert len(warnings) == 1, said  # once, not at every save
+    assert warnings[0].startswith("warning: 0.2 GiB free on the disk of ") and "train.keep_checkpoints" in warnings[0]
+    # kept to the last two checkpoints, the folder stops growing: a save needs only its own room
+    assert cli.main(["train", FOLLOW, "--model", "mlp", "--runs", str(tmp_path / "kept"), *TINY,
+                     "train.max_iterations=4", "train.save_interval=1", "train.keep_checkpoints.last=2",
+                     "--no-eval"]) == 0
+    said = capsys.readouterr().out
+    assert sum("room for about" in line for line in said.splitlines()) == 1, said  # the first saves grow it

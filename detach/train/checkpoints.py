@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import pickle
 import random
+import shutil
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -151,6 +152,33 @@ def prune_checkpoints(folder: Path, last: int, every: int) -> list[Path]:
     if doomed:
         fsync_folder(folder)
     return doomed
+
+
+LOW_DISK_SAVES = 20
+"""Warn when the disk holding a run's checkpoints has room for fewer saves than this."""
+
+
+def folder_bytes(folder: Path) -> int:
+    """Bytes of the files directly in `folder` (0 when it is missing)."""
+    if not folder.is_dir():
+        return 0
+    return sum(p.stat().st_size for p in folder.iterdir() if p.is_file())
+
+
+def disk_room_warning(folder: Path, save_bytes: int, growth_bytes: int) -> tuple[int, str] | None:
+    """(saves that still fit, a warning line) when the disk under `folder` is close to full,
+    else None. A save needs room for its whole file while it is written (`save_bytes`) and
+    leaves the folder `growth_bytes` larger once retention has pruned; a run that fills the
+    disk fails mid-write, so the line comes while there is still time to free space."""
+    free = shutil.disk_usage(folder).free
+    per_save = max(growth_bytes, 0)
+    fits = free // per_save if per_save else (LOW_DISK_SAVES if free >= 2 * save_bytes else 0)
+    if fits >= LOW_DISK_SAVES:
+        return None
+    return int(fits), (f"warning: {free / 2**30:.1f} GiB free on the disk of {folder}: room for about "
+                       f"{int(fits)} more checkpoint saves (each {save_bytes / 2**20:.0f} MB written, "
+                       f"the folder grows {per_save / 2**20:.0f} MB per save); free space or keep fewer "
+                       "(train.keep_checkpoints), or the run stops when the disk is full")
 
 
 def replay_path(checkpoint: Path) -> Path | None:

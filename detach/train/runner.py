@@ -42,8 +42,8 @@ from tqdm import tqdm
 from detach.run_contract import PROVENANCE_FILE, checkpoint_file, replay_file
 from detach.train.amp_ppo import REPLAY_KEY
 from detach.train.checkpoints import (
-    CheckpointError, capture_rng, check_model, describe_mismatch, first_line, prune_checkpoints, read_checkpoint,
-    read_sidecar, replay_path, restore_rng, saves_after, write_checkpoint,
+    CheckpointError, capture_rng, check_model, describe_mismatch, disk_room_warning, first_line, folder_bytes,
+    prune_checkpoints, read_checkpoint, read_sidecar, replay_path, restore_rng, saves_after, write_checkpoint,
 )
 from detach.train.schedule import stage_at
 
@@ -158,6 +158,8 @@ class DetachRunner(OnPolicyRunner):
         """The run's model (recorded in checkpoints; a checkpoint of another is refused)."""
         self.keep_last, self.keep_every = 0, 0
         """Checkpoint retention (`train.keep_checkpoints`); 0, 0 keeps every checkpoint."""
+        self._warned_room: int | None = None
+        """Saves that still fitted when the last low-disk line was printed (None: none yet)."""
 
     # ------------------------------------------------------------------ checkpoints
     def checkpoint_path(self, iteration: int) -> Path | None:
@@ -189,9 +191,23 @@ class DetachRunner(OnPolicyRunner):
         if path is None or self.completed_iteration < 0:
             return None
         self.current_learning_iteration = self.completed_iteration
+        before = folder_bytes(path.parent)
         self.save(str(path), infos={"stage": stage_at(self.schedule, self.completed_iteration)})
+        written = sum(p.stat().st_size for p in (path, replay_path(path)) if p is not None and p.exists())
         prune_checkpoints(path.parent, self.keep_last, self.keep_every)
+        self._warn_on_low_disk(path.parent, written, folder_bytes(path.parent) - before)
         return path
+
+    def _warn_on_low_disk(self, folder: Path, written: int, growth: int) -> None:
+        """Say when the disk is close to full: once, and again each time the saves that still
+        fit have halved (the line goes to stdout, which a sweep cell's log keeps)."""
+        warning = disk_room_warning(folder, written, growth)
+        if warning is None:
+            return
+        fits, line = warning
+        if self._warned_room is None or fits < (self._warned_room + 1) // 2:
+            print(line, flush=True)
+            self._warned_room = fits
 
     def load(self, path: str, load_cfg: dict | None = None, strict: bool = True,
              map_location: str | None = None) -> dict:
