@@ -197,17 +197,14 @@ def test_a_run_says_when_the_disk_is_about_to_fill_before_a_save_fails(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
     """A runs folder that grew to fill the disk stopped a run mid-write with no word before:
     now each save checks the room left and says so, once, while there is time to act."""
-    roomy = shutil.disk_usage(tmp_path)
+    usage = shutil.disk_usage(tmp_path)
+    free = {"bytes": 100 * 2**30}
+    monkeypatch.setattr(checkpoint_io.shutil, "disk_usage", lambda _path: usage._replace(free=free["bytes"]))
     assert cli.main(["train", FOLLOW, "--model", "mlp", "--runs", str(tmp_path / "ok"), *TINY,
                      "train.max_iterations=3", "train.save_interval=1", "--no-eval"]) == 0
-    assert "room for about" not in capsys.readouterr().out  # this disk has room
+    assert "room for about" not in capsys.readouterr().out  # 100 GiB free: room enough
 
-    free = {"bytes": 200 * 2**20}  # 200 MB: a few saves of the tiny run (~60 MB each) fit
-
-    def nearly_full(path: Path) -> object:
-        return roomy._replace(free=free["bytes"])
-
-    monkeypatch.setattr(checkpoint_io.shutil, "disk_usage", nearly_full)
+    free["bytes"] = 200 * 2**20  # 200 MB: a few saves of the tiny run (~60 MB each) fit
     assert cli.main(["train", FOLLOW, "--model", "mlp", "--runs", str(tmp_path / "low"), *TINY,
                      "train.max_iterations=4", "train.save_interval=1", "--no-eval"]) == 0
     said = capsys.readouterr().out
