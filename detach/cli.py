@@ -73,6 +73,15 @@ def _int_in(low: int, high: int | None = None) -> Callable[[str], int]:
     return parse
 
 
+def _seed_list(text: str) -> tuple[int, ...]:
+    """argparse type of --seeds: distinct seeds, comma-separated (e.g. 0,1,2)."""
+    seed = _int_in(0, MAX_SEED)
+    seeds = tuple(seed(part.strip()) for part in text.split(","))
+    if len(set(seeds)) != len(seeds):
+        raise argparse.ArgumentTypeError(f"expected distinct seeds, found {text}")
+    return seeds
+
+
 MAX_SEED = 2**32 - 1
 """NumPy's seeds are 32-bit."""
 
@@ -81,7 +90,7 @@ COMMANDS = ("train", "eval", "resume", "sweep", "play", "export", "list", "table
 
 DEFAULTS = dict(task=None, overrides=[], preset=[], model="detach", seed=0, device="cpu",
                 runs=Path("runs"), dry_run=False, resume=None, eval=None, sweep=None, eval_task=None,
-                eval_on=[], trials=None, no_eval=False, quick=False, jobs=1, models=None,
+                eval_on=[], trials=None, no_eval=False, quick=False, jobs=1, models=None, seeds=None,
                 launcher="local", cell=None, video=None, replace=False)
 """Every option a command handler reads; a subcommand's parser sets those it has."""
 
@@ -164,6 +173,10 @@ def _add_sweep_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--models", default=None, metavar="A,B",
                         help="with --sweep: run only these of the sweep's models (their cells are "
                              "the same as in the whole sweep, so a later full run skips them)")
+    parser.add_argument("--seeds", type=_seed_list, default=None, metavar="0,1",
+                        help="with --sweep: run these seeds instead of the preset's (a cell of seed S is "
+                             "the same as in a sweep that lists S, so `--seeds 0,1` after a one-seed "
+                             "sweep trains only seed 1's cells); `detach-run table --seeds` pools them")
     parser.add_argument("--launcher", choices=["local", "ray", "slurm"], default="local",
                         help="with --sweep: a local worker pool, Ray tasks (the cluster of "
                              "RAY_ADDRESS, else a local Ray; the [ray] extra) or SLURM jobs through "
@@ -314,6 +327,9 @@ def build_table_parser() -> argparse.ArgumentParser:
     which.add_argument("--preset", default=None, metavar="NAME",
                        help="with a sweep: the cells of this sweep preset (as run with --sweep --preset)")
     which.add_argument("--quick", action="store_true", help="with a sweep: the cells of its quick preset")
+    parser.add_argument("--seeds", type=_seed_list, default=None, metavar="0,1",
+                        help="with a sweep: the cells of these seeds instead of the preset's (as run with "
+                             "--sweep --seeds); the table pools each model's seeds")
     return parser
 
 
@@ -420,7 +436,7 @@ def _main(argv: Sequence[str] | None = None) -> int:
             from detach.runs.tables_cli import print_table
 
             return print_table(args.source, args.runs, args.kind, args.out, args.task, args.sgr,
-                               "quick" if args.quick else args.preset)
+                               "quick" if args.quick else args.preset, args.seeds)
         if args.command == "keys":
             return _keys(args.section)
         if args.command == "export":
@@ -435,7 +451,7 @@ def _main(argv: Sequence[str] | None = None) -> int:
                 raise ConfigError("--sweep takes one --preset (one of the sweep's presets)")
             failed = run_sweep(args.sweep, args.runs, args.jobs, args.quick, args.device,
                                launcher=args.launcher, preset=next(iter(args.preset), None),
-                               models=args.models.split(",") if args.models else None)
+                               models=args.models.split(",") if args.models else None, seeds=args.seeds)
             return 1 if failed else 0
         if args.command == "resume":
             return _resume(args)

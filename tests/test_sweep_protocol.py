@@ -143,6 +143,46 @@ def test_sweeps_share_the_cells_of_a_common_stage(tmp_path: Path) -> None:
         assert (train.max_iterations, train.save_interval, train.learning_rate) == (100, 5, 1.0e-4)
 
 
+def test_more_seeds_train_only_the_cells_a_one_seed_sweep_lacks_and_their_table_pools_them(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    sweep = tmp_path / "one_stage.yaml"
+    sweep.write_text(textwrap.dedent(f"""\
+        name: one_stage
+        models: [mlp]
+        seeds: [0]
+        table: skills
+        stages: [{{name: follow, task: {ROOT / 'configs/tasks/follow.yaml'}}}]
+        eval: {{follow: [{ROOT / 'configs/tasks/follow.yaml'}]}}
+        presets:
+          tiny: {{eval_trials: 2, overrides: [{', '.join(TINY)}]}}
+        """))
+    out = tmp_path / "runs"
+    assert cli.main(["sweep", str(sweep), "--preset", "tiny", "--runs", str(out)]) == 0
+    first = {r.status().cell for r in find_runs(out)}
+    assert len(first) == 1 and next(iter(first)).startswith("follow/mlp/s0/")
+    capsys.readouterr()
+    assert cli.main(["sweep", str(sweep), "--preset", "tiny", "--seeds", "0,1", "--runs", str(out)]) == 0
+    said = capsys.readouterr().out
+    assert "seeds 0,1: 2 cells, 1 done, 1 to run" in said  # seed 0's cell is the one-seed sweep's
+    keys = {r.status().cell for r in find_runs(out)}
+    assert keys - first == {c.key for c in cells(load_sweep(sweep, preset="tiny", seeds=[1]), sweep)}
+    assert cli.main(["table", str(sweep), "--preset", "tiny", "--seeds", "0,1", "--runs", str(out),
+                     "--task", "follow", "--out", str(tmp_path / "tables")]) == 0
+    pooled = (tmp_path / "tables" / "one_stage_follow_seeds0-1.csv").read_text()
+    assert "4 (2 seeds)" in pooled  # two trials of each seed
+    assert cli.main(["table", str(sweep), "--preset", "tiny", "--runs", str(out), "--task", "follow",
+                     "--out", str(tmp_path / "tables")]) == 0
+    assert "2 (1 seed)" in (tmp_path / "tables" / "one_stage_follow.csv").read_text()  # the preset's own seeds
+    capsys.readouterr()
+    for bad, said in [("0,0", "expected distinct seeds, found 0,0"), ("1,x", "expected an integer, found 'x'"),
+                      ("-1", "expected an integer in [0, 4294967295], found -1")]:
+        assert cli.main(["sweep", str(sweep), "--preset", "tiny", f"--seeds={bad}", "--runs", str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and said in err[0], err
+    assert cli.main(["table", str(out), "--seeds", "1"]) == 2
+    assert "--seeds: with a sweep file only" in capsys.readouterr().err
+
+
 def test_a_second_process_on_the_same_sweep_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     sweep = write_sweep(tmp_path)
     out = tmp_path / "runs"
@@ -151,7 +191,7 @@ def test_a_second_process_on_the_same_sweep_is_refused(tmp_path: Path, capsys: p
         import time
         from pathlib import Path
         from detach.runs.sweep import _lock_path, file_lock
-        key = "sweep:{sweep.resolve()}:{sweep_cfg.preset}:{sweep_cfg.models}"
+        key = "sweep:{sweep.resolve()}:{sweep_cfg.preset}:{sweep_cfg.models}:{sweep_cfg.seeds}"
         with file_lock(_lock_path(Path({str(out)!r}), key)) as held:
             print(held, flush=True)
             time.sleep(30)

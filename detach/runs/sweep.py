@@ -154,8 +154,10 @@ def _require_task(builder: Builder, path: Path, where: tuple, task: str) -> None
         raise builder.error(where, f"task '{task}' not found ({task_file(path, task)})")
 
 
-def load_sweep(path: Path, quick: bool = False, preset: str | None = None) -> SweepCfg:
-    """The sweep of `path` with `preset` applied (`quick` = preset "quick")."""
+def load_sweep(path: Path, quick: bool = False, preset: str | None = None,
+               seeds: Sequence[int] | None = None) -> SweepCfg:
+    """The sweep of `path` with `preset` applied (`quick` = preset "quick"), of `seeds` instead
+    of its own when given."""
     data, prov = load_merged(Path(path))
     builder = Builder(prov, str(path))
     sweep = builder.build(SweepCfg, data, ())
@@ -187,7 +189,7 @@ def load_sweep(path: Path, quick: bool = False, preset: str | None = None) -> Sw
         sweep = replace(sweep, seeds=p.seeds or sweep.seeds, eval_trials=p.eval_trials or sweep.eval_trials,
                         overrides=(*sweep.overrides, *p.overrides), phase_b=p.phase_b or sweep.phase_b,
                         presets={**sweep.presets, preset: p}, preset=preset)
-    return sweep
+    return sweep if seeds is None else replace(sweep, seeds=tuple(seeds))
 
 
 def _with_added_stages(sweep: SweepCfg, preset: str, builder: Builder, path: Path) -> SweepCfg:
@@ -289,12 +291,13 @@ def cells(sweep: SweepCfg, sweep_path: Path) -> list[Cell]:
     return list(out.values())
 
 
-def cell_evaluations(sweep_path: Path, preset: str | None = None) -> dict[str, frozenset[str]]:
-    """Key of each of the sweep's cells under `preset` (None = its default settings) -> the
-    tasks the sweep evaluates it on: what a table of that sweep reads, so neither runs of
-    another preset or reading nor evaluations made by hand on other tasks (a phase-A policy
-    tried on LH1) pool into it."""
-    sweep = load_sweep(sweep_path, preset=preset)
+def cell_evaluations(sweep_path: Path, preset: str | None = None,
+                     seeds: Sequence[int] | None = None) -> dict[str, frozenset[str]]:
+    """Key of each of the sweep's cells under `preset` (None = its default settings; of
+    `seeds` instead of its own when given) -> the tasks the sweep evaluates it on: what a
+    table of that sweep reads, so neither runs of another preset or reading nor evaluations
+    made by hand on other tasks (a phase-A policy tried on LH1) pool into it."""
+    sweep = load_sweep(sweep_path, preset=preset, seeds=seeds)
     return {c.key: frozenset(t.stem for t in c.evals) for c in cells(sweep, sweep_path)}
 
 
@@ -627,18 +630,20 @@ def cell_work(cell: Cell, trials: int) -> float | None:
 
 
 def run_sweep(sweep_path: Path, out: Path, jobs: int = 1, quick: bool = False, device: str = "cpu",
-              launcher: str = "local", preset: str | None = None, models: Sequence[str] | None = None) -> int:
-    """Run every cell that is not finished and evaluated (of `models` only, when given);
-    returns the number that failed."""
-    sweep = load_sweep(sweep_path, quick, preset)
+              launcher: str = "local", preset: str | None = None, models: Sequence[str] | None = None,
+              seeds: Sequence[int] | None = None) -> int:
+    """Run every cell that is not finished and evaluated (of `models` only, and of `seeds`
+    instead of the sweep's, when given); returns the number that failed."""
+    sweep = load_sweep(sweep_path, quick, preset, seeds)
     if models:
         unknown = [m for m in models if m not in sweep.models]
         if unknown:
             raise ConfigError(f"--models: {unknown[0]!r} is not a model of sweep '{sweep.name}' "
                               f"({', '.join(sweep.models)})", str(sweep_path))
         sweep = replace(sweep, models=tuple(m for m in sweep.models if m in models))
-    label = f"{sweep.name}" + (f" [{sweep.preset}]" if sweep.preset else "") + (f" {{{','.join(models)}}}" if models else "")
-    with file_lock(_lock_path(out, f"sweep:{Path(sweep_path).resolve()}:{sweep.preset}:{sweep.models}")) as held:
+    label = f"{sweep.name}" + (f" [{sweep.preset}]" if sweep.preset else "") + (f" {{{','.join(models)}}}" if models else "") \
+        + (f" seeds {','.join(map(str, sweep.seeds))}" if seeds is not None else "")
+    with file_lock(_lock_path(out, f"sweep:{Path(sweep_path).resolve()}:{sweep.preset}:{sweep.models}:{sweep.seeds}")) as held:
         if not held:
             raise ConfigError(f"sweep {label} is already running in another process (lock in {out}/.locks)",
                               str(sweep_path))

@@ -16,7 +16,7 @@ import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Collection, Mapping
+from typing import Callable, Collection, Mapping, Sequence
 
 from detach.config import ConfigError
 from detach.eval.tables import TABLES, render
@@ -78,11 +78,16 @@ def collect_evals(runs: list[RunFolder], cells: Mapping[str, Collection[str]] | 
 
 
 def print_table(source: Path, runs_dir: Path, kind: str | None, out: Path | None,
-                task: str | None = None, sgr_variant: str = "reported", preset: str | None = None) -> int:
+                task: str | None = None, sgr_variant: str = "reported", preset: str | None = None,
+                seeds: Sequence[int] | None = None) -> int:
     """Print the table(s) of a runs folder or of a sweep's cells (under `preset`, None = the
-    sweep's default settings) and write .md, .csv, _ci.csv and .tex beside each."""
+    sweep's default settings; of `seeds` instead of its own when given) and write .md, .csv,
+    _ci.csv and .tex beside each."""
     if not source.exists():
         raise ConfigError("sweep file or runs folder not found", str(source))
+    if source.is_dir() and seeds is not None:
+        raise ConfigError("--seeds: with a sweep file only (a runs folder's table pools every run in it)", str(source))
+    seeded = "" if seeds is None else "_seeds" + "-".join(map(str, seeds))  # the preset's own files stay
     if source.is_dir():
         evals, kinds, name = collect_evals(find_runs(source)), [kind] if kind else list(TABLES), source.name
         out = out or source / "tables"
@@ -90,8 +95,8 @@ def print_table(source: Path, runs_dir: Path, kind: str | None, out: Path | None
     else:
         from detach.runs.sweep import cell_evaluations, existing_runs, load_sweep
 
-        sweep = load_sweep(source, preset=preset)
-        cells = cell_evaluations(source, preset)
+        sweep = load_sweep(source, preset=preset, seeds=seeds)
+        cells = cell_evaluations(source, preset, seeds)
         evals = collect_evals(find_runs(runs_dir), cells)
         kinds, name = [kind or sweep.table], sweep.name
         out = out or runs_dir / "tables"
@@ -112,7 +117,8 @@ def print_table(source: Path, runs_dir: Path, kind: str | None, out: Path | None
         markdown = table.to_markdown()
         print(markdown)
         stem = out / ((name if curves is not None else f"{name}_{k}")  # a sweep has one table
-                      + (f"_{task}" if task else ""))  # the table on another task than the paper's
+                      + (f"_{task}" if task else "")  # the table on another task than the paper's
+                      + seeded)
         files = {stem.with_suffix(".md"): markdown, stem.with_suffix(".csv"): table.to_csv(),
                  stem.with_name(f"{stem.name}_ci.csv"): table.to_ci_csv(), stem.with_suffix(".tex"): table.to_latex()}
         try:
@@ -125,8 +131,8 @@ def print_table(source: Path, runs_dir: Path, kind: str | None, out: Path | None
     if curves:
         from detach.runs.curves import write_sweep_curves
 
-        title = f"{name}" + (f" [{preset}]" if preset else "")
-        for path in write_sweep_curves(curves, out, name, title, _stderr):
+        title = f"{name}" + (f" [{preset}]" if preset else "") + (f", seeds {', '.join(map(str, seeds))}" if seeds else "")
+        for path in write_sweep_curves(curves, out, name + seeded, title, _stderr):
             print(f"written: {path}")
     return 0
 
