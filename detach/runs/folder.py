@@ -28,8 +28,7 @@ from detach.config import dump, load_run_config
 from detach.config_schema import RunConfig
 from detach.run_contract import (
     CHECKPOINT_DIR, CONFIG_FILE, EVAL_FILE, LIVE_STATES, LOG_FILE, RUN_MARKERS, RUN_STATES, SELECTION_FILE,
-    STATUS_FILE, STDOUT_FILE, ContractError, EvalResult, Status, atomic_writer, checkpoint_iteration, is_temp_file,
-    selected_checkpoint,
+    STATUS_FILE, STDOUT_FILE, EvalResult, Status, atomic_writer, is_temp_file,
 )
 
 RunState = Literal["queued", "running", "finished", "failed", "interrupted"]
