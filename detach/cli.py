@@ -169,7 +169,8 @@ def _add_sweep_options(parser: argparse.ArgumentParser) -> None:
                         help="with --sweep: use the sweep's quick preset (CPU smoke run)")
     parser.add_argument("--jobs", type=_int_in(1), default=1,
                         help="with --sweep: cells run in parallel (default: 1, as each run uses every "
-                             "core; detach-scene build defaults to all cores)")
+                             "core; detach-scene build defaults to all cores); each gets cores / JOBS torch "
+                             "threads, or every core when nothing else of the sweep can run beside it")
     parser.add_argument("--models", default=None, metavar="A,B",
                         help="with --sweep: run only these of the sweep's models (their cells are "
                              "the same as in the whole sweep, so a later full run skips them)")

@@ -3,6 +3,8 @@ and `train.init_from`, through the `detach-run` CLI on tiny puppet runs."""
 
 from __future__ import annotations
 
+import json
+import os
 import signal
 import subprocess
 import sys
@@ -143,8 +145,14 @@ def test_sweeps_share_the_cells_of_a_common_stage(tmp_path: Path) -> None:
         assert (train.max_iterations, train.save_interval, train.learning_rate) == (100, 5, 1.0e-4)
 
 
+def _torch_threads(run) -> int:
+    return json.loads((run.path / "provenance.json").read_text())["runs"][0]["device"]["torch_threads"]
+
+
 def test_more_seeds_train_only_the_cells_a_one_seed_sweep_lacks_and_their_table_pools_them(
-        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)  # the sweep chooses each cell's threads
+    cores = os.cpu_count() or 1
     sweep = tmp_path / "one_stage.yaml"
     sweep.write_text(textwrap.dedent(f"""\
         name: one_stage
@@ -161,11 +169,16 @@ def test_more_seeds_train_only_the_cells_a_one_seed_sweep_lacks_and_their_table_
     first = {r.status().cell for r in find_runs(out)}
     assert len(first) == 1 and next(iter(first)).startswith("follow/mlp/s0/")
     capsys.readouterr()
-    assert cli.main(["sweep", str(sweep), "--preset", "tiny", "--seeds", "0,1", "--runs", str(out)]) == 0
+    assert cli.main(["sweep", str(sweep), "--preset", "tiny", "--seeds", "0,1", "--jobs", "2", "--runs", str(out)]) == 0
     said = capsys.readouterr().out
     assert "seeds 0,1: 2 cells, 1 done, 1 to run" in said  # seed 0's cell is the one-seed sweep's
-    keys = {r.status().cell for r in find_runs(out)}
-    assert keys - first == {c.key for c in cells(load_sweep(sweep, preset="tiny", seeds=[1]), sweep)}
+    runs = {r.status().cell: r for r in find_runs(out)}
+    assert set(runs) - first == {c.key for c in cells(load_sweep(sweep, preset="tiny", seeds=[1]), sweep)}
+    # with --jobs 2 a cell that nothing else can run beside gets every core, two side by side half each
+    assert {_torch_threads(r) for k, r in runs.items() if k not in first} == {cores}
+    assert cli.main(["sweep", str(sweep), "--preset", "tiny", "--seeds", "2,3", "--jobs", "2", "--runs", str(out)]) == 0
+    pair = [r for r in find_runs(out) if r.status().cell.split("/")[2] in ("s2", "s3")]
+    assert len(pair) == 2 and {_torch_threads(r) for r in pair} == {max(1, cores // 2)}
     assert cli.main(["table", str(sweep), "--preset", "tiny", "--seeds", "0,1", "--runs", str(out),
                      "--task", "follow", "--out", str(tmp_path / "tables")]) == 0
     pooled = (tmp_path / "tables" / "one_stage_follow_seeds0-1.csv").read_text()

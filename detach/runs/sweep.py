@@ -40,7 +40,7 @@ from collections import deque
 from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import BinaryIO, Literal, Sequence
+from typing import BinaryIO, Collection, Iterable, Literal, Mapping, Sequence
 
 from detach.config import find_config_file, load_merged, resolve
 from detach.config_validate import Builder
@@ -166,8 +166,9 @@ def load_sweep(path: Path, quick: bool = False, preset: str | None = None,
         raise ConfigError(f"stage names must be unique, found {names}", str(path))
     for i, stage in enumerate(sweep.stages):
         if stage.init_from is not None and stage.init_from not in names[:i]:
-            raise builder.error(("stages", i, "init_from"), f"expected an earlier stage ({', '.join(names[:i]) or 'none'}), "
-                                                            f"found {stage.init_from!r}")
+            raise builder.error(("stages", i, "init_from"),
+                                f"expected an earlier stage ({', '.join(names[:i]) or 'none'}), "
+                                f"found {stage.init_from!r}")
         _require_task(builder, path, ("stages", i, "task"), stage.task)
     for stage_name, tasks in sweep.eval.items():
         if stage_name not in names:
@@ -208,8 +209,9 @@ def _with_added_stages(sweep: SweepCfg, preset: str, builder: Builder, path: Pat
                 raise builder.error((*where, "name"), f"expected a new stage name, found {stage.name!r} (stages: "
                                                       f"{', '.join(names)})")
             if stage.init_from not in names:
-                raise builder.error((*where, "init_from"), f"expected the stage this one continues ({', '.join(names)}), "
-                                                           f"found {stage.init_from!r}")
+                raise builder.error((*where, "init_from"),
+                                    f"expected the stage this one continues ({', '.join(names)}), "
+                                    f"found {stage.init_from!r}")
             _require_task(builder, path, (*where, "task"), stage.task)
             stages.append(stage)
             evals[stage.name] = evals.pop(stage.init_from, ())
@@ -253,10 +255,12 @@ def _resolved_preset(sweep: SweepCfg, name: str, builder: Builder, seen: tuple[s
                             f"({', '.join(k for k in sweep.presets if k != name)}), found {p.extends!r}")
     base = _resolved_preset(sweep, p.extends, builder, (*seen, name))
     return PresetCfg(None, p.seeds or base.seeds, p.eval_trials or base.eval_trials, (*base.overrides, *p.overrides),
-                     {**base.stage_overrides, **{k: (*base.stage_overrides.get(k, ()), *v) for k, v in p.stage_overrides.items()}},
+                     {**base.stage_overrides,
+                      **{k: (*base.stage_overrides.get(k, ()), *v) for k, v in p.stage_overrides.items()}},
                      {**base.stage_teachers,
                       **{k: {**base.stage_teachers.get(k, {}), **v} for k, v in p.stage_teachers.items()}},
-                     (*base.config_presets, *p.config_presets), p.phase_b or base.phase_b)  # stages: `_with_added_stages`
+                     (*base.config_presets, *p.config_presets),
+                     p.phase_b or base.phase_b)  # stages: `_with_added_stages`
 
 
 def _digest(parts: dict) -> str:
@@ -431,6 +435,22 @@ def _cell_env(jobs: int) -> dict[str, str]:
     env = dict(os.environ)
     env.setdefault("OMP_NUM_THREADS", str(max(1, (os.cpu_count() or 1) // max(jobs, 1))))
     return env
+
+
+def _runs_alone(cell: Cell, running: Collection[Cell], pending: Iterable[Cell], by_key: Mapping[str, Cell]) -> bool:
+    """Nothing else of the sweep can run while `cell` does: none is running and every cell
+    still to run starts from it (directly or further down). Such a cell gets every core: the
+    thread count is fixed when a cell starts, and with `--jobs 2` the sweep's last cells ran
+    on one torch thread beside an idle core (DETACH's Carry and LH1, 17 minutes of Table I)."""
+    def descends(other: Cell) -> bool:
+        at = other.parent
+        while at is not None:
+            if at == cell.key:
+                return True
+            at = by_key[at].parent if at in by_key else None
+        return False
+
+    return not running and all(descends(other) for other in pending)
 
 
 class _LocalPool:
@@ -641,9 +661,11 @@ def run_sweep(sweep_path: Path, out: Path, jobs: int = 1, quick: bool = False, d
             raise ConfigError(f"--models: {unknown[0]!r} is not a model of sweep '{sweep.name}' "
                               f"({', '.join(sweep.models)})", str(sweep_path))
         sweep = replace(sweep, models=tuple(m for m in sweep.models if m in models))
-    label = f"{sweep.name}" + (f" [{sweep.preset}]" if sweep.preset else "") + (f" {{{','.join(models)}}}" if models else "") \
-        + (f" seeds {','.join(map(str, sweep.seeds))}" if seeds is not None else "")
-    with file_lock(_lock_path(out, f"sweep:{Path(sweep_path).resolve()}:{sweep.preset}:{sweep.models}:{sweep.seeds}")) as held:
+    label = (f"{sweep.name}" + (f" [{sweep.preset}]" if sweep.preset else "")
+             + (f" {{{','.join(models)}}}" if models else "")
+             + (f" seeds {','.join(map(str, sweep.seeds))}" if seeds is not None else ""))
+    lock = f"sweep:{Path(sweep_path).resolve()}:{sweep.preset}:{sweep.models}:{sweep.seeds}"
+    with file_lock(_lock_path(out, lock)) as held:
         if not held:
             raise ConfigError(f"sweep {label} is already running in another process (lock in {out}/.locks)",
                               str(sweep_path))
@@ -663,7 +685,8 @@ def _run_graph(sweep: SweepCfg, sweep_path: Path, out: Path, jobs: int, device: 
         return 0
     pool = _RayPool(jobs) if launcher == "ray" else _SubmititPool(jobs, out) if launcher == "slurm" \
         else _LocalPool(jobs)
-    env = _cell_env(jobs)
+    env, env_alone = _cell_env(jobs), _cell_env(1)
+    by_key = {c.key: c for c in todo}
     running: dict[Future, Cell] = {}
     failed: set[str] = set()
     finished = 0
@@ -683,7 +706,8 @@ def _run_graph(sweep: SweepCfg, sweep_path: Path, out: Path, jobs: int, device: 
                     print(f"[{finished}/{total}] {cell.key}: SKIPPED (its parent cell failed)", flush=True)
                 elif cell.parent is None or cell.parent in done_keys:
                     pending.remove(cell)
-                    running[pool.submit(_Work(cell, out, sweep.eval_trials, device, env))] = cell
+                    cell_env = env_alone if _runs_alone(cell, running.values(), pending, by_key) else env
+                    running[pool.submit(_Work(cell, out, sweep.eval_trials, device, cell_env))] = cell
                     clock.start(cell.key)
                     print(f"[{finished}/{total}] {cell.key}: start ({clock.progress()})",
                           flush=True)

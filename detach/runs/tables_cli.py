@@ -131,7 +131,8 @@ def print_table(source: Path, runs_dir: Path, kind: str | None, out: Path | None
     if curves:
         from detach.runs.curves import write_sweep_curves
 
-        title = f"{name}" + (f" [{preset}]" if preset else "") + (f", seeds {', '.join(map(str, seeds))}" if seeds else "")
+        title = (f"{name}" + (f" [{preset}]" if preset else "")
+                 + (f", seeds {', '.join(map(str, seeds))}" if seeds else ""))
         for path in write_sweep_curves(curves, out, name + seeded, title, _stderr):
             print(f"written: {path}")
     return 0
