@@ -170,3 +170,15 @@ def test_code_cites_only_documents_of_the_repository() -> None:
     missing = [c for c in cited if not (ROOT / c).exists() and not (ROOT / "docs" / c).exists()
                and not (ROOT / "benchmarks" / c).exists()]
     assert not missing, f"cited but not in the repository: {missing}"
+
+
+def test_the_linter_excludes_no_code_folder() -> None:
+    """ruff's `extend-exclude` takes a bare name ("runs") for every folder of that name in the
+    tree: it once left out detach/runs/ with the top-level runs/ folder, whose unused imports
+    and long lines went unseen. Only anchored paths ("./runs") may name a folder."""
+    import tomllib
+
+    patterns = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["ruff"].get("extend-exclude", [])
+    bare = {p.strip("/") for p in patterns if "/" not in p.strip("/")}
+    folders = {d.name for pkg in (*PACKAGES, "tests", "benchmarks") for d in (ROOT / pkg).rglob("*") if d.is_dir()}
+    assert not bare & (folders | set(PACKAGES)), f"extend-exclude names code folders: {sorted(bare & folders)}"
