@@ -18,6 +18,8 @@ from typing import Callable, Sequence
 
 from detach.config import ConfigError, dump, resolve
 from detach.config_schema import RunConfig
+from detach.eval.trial_sets import MIN_TEST_SEED_OFFSET
+from detach.run_contract import EXPORT_FORMATS
 from detach.runs.folder import RunFolder, run_folder_name
 
 EXIT_USAGE = 2
@@ -91,8 +93,12 @@ COMMANDS = ("train", "eval", "resume", "sweep", "play", "export", "list", "table
 DEFAULTS = dict(task=None, overrides=[], preset=[], model="detach", seed=0, device="cpu",
                 runs=Path("runs"), dry_run=False, resume=None, eval=None, sweep=None, eval_task=None,
                 eval_on=[], trials=None, no_eval=False, quick=False, jobs=1, models=None, seeds=None,
-                launcher="local", cell=None, video=None, replace=False)
+                launcher="local", cell=None, video=None, replace=False, test_trials=None)
 """Every option a command handler reads; a subcommand's parser sets those it has."""
+
+
+TEST_TRIALS_CELLS_ONLY = ("--test-trials: the held-out test trials are played only for a sweep's cells "
+                          "(detach-run sweep passes it); evaluate other runs on the development trials")
 
 
 def version() -> str:
@@ -134,6 +140,13 @@ def _add_after_training(parser: argparse.ArgumentParser) -> None:
 def _add_trials(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--trials", type=_int_in(1), default=None,
                         help="evaluation episodes (default: eval.trials of the config, 100)")
+
+
+def _add_test_trials(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--test-trials", type=_int_in(MIN_TEST_SEED_OFFSET), default=None, metavar="OFFSET",
+                        help="a sweep cell only (the sweep passes its test_seed_offset): evaluate on the "
+                             "held-out test trials, env seed = run seed + OFFSET, into eval.test.json; "
+                             "without it, the development trials (env seed = run seed)")
 
 
 def _add_eval_task(parser: argparse.ArgumentParser, what: str) -> None:
@@ -206,6 +219,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_eval_task(parser, "evaluate (with --eval)")
     _add_after_training(parser)
     _add_trials(parser)
+    _add_test_trials(parser)
     _add_sweep_options(parser)
     _add_video(parser, "with --eval: env 0's first episode")
     parser.add_argument("--cell", help=argparse.SUPPRESS)
@@ -219,6 +233,7 @@ def build_train_parser() -> argparse.ArgumentParser:
     _add_train_options(parser)
     _add_after_training(parser)
     _add_trials(parser)
+    _add_test_trials(parser)
     parser.add_argument("--cell", help=argparse.SUPPRESS)
     return parser
 
@@ -226,10 +241,15 @@ def build_train_parser() -> argparse.ArgumentParser:
 def build_eval_parser() -> argparse.ArgumentParser:
     parser = _subparser("eval", "Evaluate a run's policy (the checkpoint it selected on validation trials, else "
                                 "its newest readable one) or the given checkpoint file; writes eval.json "
-                                "(eval_<task>.json for another task).")
-    parser.add_argument("eval", type=Path, metavar="RUN_DIR|CKPT")
+                                "(eval_<task>.json for another task). An exported policy (`detach-run export "
+                                "--format policy`) is evaluated without its run folder, into "
+                                "<file>.eval_<task>_s<seed>.json beside it.")
+    parser.add_argument("eval", type=Path, metavar="RUN_DIR|CKPT|POLICY.policy.pt")
     _add_eval_task(parser, "evaluate")
+    parser.add_argument("--seed", type=_int_in(0, MAX_SEED), default=None,
+                        help="with an exported policy: the trials of this run seed (default: the run's)")
     _add_trials(parser)
+    _add_test_trials(parser)
     parser.add_argument("--replace", action="store_true",
                         help="replace an evaluation of the same task with more trials (refused otherwise)")
     _add_device(parser)
@@ -246,6 +266,7 @@ def build_resume_parser() -> argparse.ArgumentParser:
     parser.add_argument("--dry-run", action="store_true", help="print the config it would continue with")
     _add_after_training(parser)
     _add_trials(parser)
+    _add_test_trials(parser)
     return parser
 
 
@@ -287,10 +308,11 @@ def build_export_parser() -> argparse.ArgumentParser:
     parser.add_argument("--checkpoint", type=_int_in(0), default=None, metavar="N",
                         help="iteration of the checkpoint (default: the run's policy: its selected "
                              "checkpoint, else the newest readable one)")
-    parser.add_argument("--format", dest="fmt", choices=["onnx", "jit", "init"], default="onnx",
-                        help="ONNX (onnxruntime), TorchScript, or init: a compact start for train.init_from "
-                             "(actor and critic in float16, no optimiser, replay or discriminator) "
-                             "(default: onnx)")
+    parser.add_argument("--format", dest="fmt", choices=["onnx", "jit", "init", "policy"], default="onnx",
+                        help="ONNX (onnxruntime), TorchScript, init: a compact start for train.init_from "
+                             "(actor and critic in float16, no optimiser, replay or discriminator), or "
+                             "policy: the actor alone in float16 with the run's config beside it, which "
+                             "`detach-run eval FILE` evaluates without the run folder (default: onnx)")
     parser.add_argument("--output", type=Path, default=None, metavar="FILE",
                         help="where to write it (default: inside the run folder)")
     return parser
@@ -331,6 +353,10 @@ def build_table_parser() -> argparse.ArgumentParser:
     parser.add_argument("--seeds", type=_seed_list, default=None, metavar="0,1",
                         help="with a sweep: the cells of these seeds instead of the preset's (as run with "
                              "--sweep --seeds); the table pools each model's seeds")
+    parser.add_argument("--trial-set", choices=["test", "development"], default=None,
+                        help="which evaluations: the held-out test trials (a sweep's default, where it has "
+                             "a test_seed_offset) or the development trials (a runs folder's default; "
+                             "files end in _dev); docs/PROTOCOL.md, \"Trials\"")
     return parser
 
 
@@ -437,7 +463,7 @@ def _main(argv: Sequence[str] | None = None) -> int:
             from detach.runs.tables_cli import print_table
 
             return print_table(args.source, args.runs, args.kind, args.out, args.task, args.sgr,
-                               "quick" if args.quick else args.preset, args.seeds)
+                               "quick" if args.quick else args.preset, args.seeds, args.trial_set)
         if args.command == "keys":
             return _keys(args.section)
         if args.command == "export":
@@ -512,6 +538,8 @@ def _train(args: argparse.Namespace) -> int:
         raise ConfigError("missing TASK (or use a command: " + ", ".join(COMMANDS) + ")")
     task = task_path(args.task)
     eval_on = [task_path(extra, "--eval-on") for extra in args.eval_on]
+    if args.test_trials is not None and not args.cell:
+        raise ConfigError(TEST_TRIALS_CELLS_ONLY)
     from detach.train.checks import complete_run_config
 
     cfg = complete_run_config(resolve(task, args.model, args.overrides, seed=args.seed, device=args.device,
@@ -541,7 +569,8 @@ def _train(args: argparse.Namespace) -> int:
                           f"expected a writable folder") from None
     print(f"run folder: {run.path}")
     code = run_job(run, lambda r: train_and_evaluate(
-        r, resume=False, eval_tasks=eval_on, trials=args.trials, evaluate=not args.no_eval))
+        r, resume=False, eval_tasks=eval_on, trials=args.trials, evaluate=not args.no_eval,
+        test_offset=args.test_trials))
     print(f"run folder: {run.path}")
     if code == 0 and not args.cell:
         print(f"next: detach-dashboard --runs {args.runs}  (curves, 3D replay of the evaluation, tables; "
@@ -556,6 +585,8 @@ def _resume(args: argparse.Namespace) -> int:
     if run.latest_checkpoint() is None:
         raise ConfigError("run has no checkpoint to resume from", str(args.resume))
     _refuse_if_alive(run)
+    if args.test_trials is not None and run.status().cell is None:
+        raise ConfigError(TEST_TRIALS_CELLS_ONLY, str(run.path))
     cfg = run.config()  # validates the stored config as a user error, not a traceback
     checkpoint = _resume_checkpoint(run, cfg, rename=not args.dry_run)
     new = _extended_config(run, args.overrides, checkpoint) if args.overrides else cfg
@@ -579,7 +610,7 @@ def _resume(args: argparse.Namespace) -> int:
     print(f"resuming {run.path} from {checkpoint.name}")
     return run_job(run, lambda r: train_and_evaluate(
         r, resume=True, eval_tasks=eval_on, trials=args.trials, evaluate=not args.no_eval,
-        device=args.device, checkpoint=checkpoint))
+        device=args.device, checkpoint=checkpoint, test_offset=args.test_trials))
 
 
 def _resume_checkpoint(run: RunFolder, cfg: RunConfig, rename: bool = True) -> Path:
@@ -653,13 +684,18 @@ def _extended_config(run: RunFolder, overrides: Sequence[str], checkpoint: Path)
 
 
 def _evaluate(args: argparse.Namespace) -> int:
-    run, checkpoint = _run_and_checkpoint(args.eval)
     eval_task = task_path(args.eval_task, "--task") if args.eval_task is not None else None
+    if Path(args.eval).name.endswith(EXPORT_FORMATS["policy"]):
+        return _evaluate_policy_file(args, eval_task)
+    if getattr(args, "seed", None) not in (None, 0) and args.command == "eval":
+        raise ConfigError("--seed: with an exported policy only (a run is evaluated on its own seed's trials)")
+    run, checkpoint = _run_and_checkpoint(args.eval)
     if args.video is not None:
         _choose_gl()  # before anything imports mujoco
+    from detach.eval.trial_sets import TrialSetError
     from detach.runs.session import evaluate_run, smaller_evaluation
 
-    smaller = None if args.replace else smaller_evaluation(run, eval_task, args.trials)
+    smaller = None if args.replace else smaller_evaluation(run, eval_task, args.trials, args.test_trials)
     if smaller is not None:
         raise ConfigError(smaller)
     if checkpoint is not None:
@@ -670,12 +706,35 @@ def _evaluate(args: argparse.Namespace) -> int:
     live = run.owner_alive()
     if live:
         print("the run is still training: its log.mcap is left alone (no episode recorded)")
-    path = evaluate_run(run, eval_task, checkpoint, args.trials, device=args.device, record=not live)
+    try:
+        path = evaluate_run(run, eval_task, checkpoint, args.trials, device=args.device, record=not live,
+                            test_offset=args.test_trials)
+    except TrialSetError as exc:
+        raise ConfigError(str(exc)) from None
     print(f"evaluation written to {path}")
     if args.video is not None:
         from detach.runs.play import play_video
 
         play_video(run, checkpoint, eval_task, args.video, device=args.device, episodes=1)
+    return 0
+
+
+def _evaluate_policy_file(args: argparse.Namespace, eval_task: Path | None) -> int:
+    from detach.eval.trial_sets import TrialSetError
+    from detach.runs.session import evaluate_policy_file
+    from detach.train.checkpoints import CheckpointError
+
+    policy = Path(args.eval)
+    if not policy.is_file():
+        raise ConfigError("exported policy not found", str(policy))
+    if args.video is not None:
+        raise ConfigError("--video: with a run folder only")
+    try:
+        path = evaluate_policy_file(policy, eval_task, args.seed, args.trials, device=args.device,
+                                    test_offset=args.test_trials)
+    except (TrialSetError, CheckpointError) as exc:
+        raise ConfigError(str(exc)) from None
+    print(f"evaluation written to {path}")
     return 0
 
 

@@ -54,7 +54,7 @@ PARAMS_DIR = "params"
 AGENT_PARAMS_FILE = "params/agent.yaml"
 """rsl-rl's train config of the run (IsaacLab's name), relative to the run folder."""
 EXPORT_DIR = "exported"
-EXPORT_FORMATS: dict[str, str] = {"onnx": ".onnx", "jit": ".pt", "init": ".init.pt"}
+EXPORT_FORMATS: dict[str, str] = {"onnx": ".onnx", "jit": ".pt", "init": ".init.pt", "policy": ".policy.pt"}
 """`detach-run export --format` -> file suffix."""
 RUN_MARKERS = (CONFIG_FILE, STATUS_FILE)
 """A folder holding either file is a run folder."""
@@ -174,9 +174,23 @@ def export_file(iteration: int, fmt: str) -> str:
     return f"policy_{int(iteration)}{EXPORT_FORMATS[fmt]}"
 
 
-def eval_file(task: str | None = None) -> str:
-    """eval.json (the run's own task, task None) or eval_<task>.json (another task)."""
-    return EVAL_FILE if task is None else f"eval_{task}.json"
+TEST_EVAL_SUFFIX = ".test"
+"""Before `.json` in the name of an evaluation on the held-out test trials
+(`detach.eval.trial_sets`): eval.test.json, eval_<task>.test.json."""
+
+
+def eval_file(task: str | None = None, trial_set: str | None = None) -> str:
+    """eval.json (the run's own task, task None) or eval_<task>.json (another task), on the
+    development trials; with trial_set "test", eval.test.json / eval_<task>.test.json."""
+    if trial_set not in (None, "development", "test"):
+        raise ValueError(f"an evaluation file holds development or test trials, not {trial_set!r}")
+    stem = EVAL_FILE[:-len(".json")] if task is None else f"eval_{task}"
+    return stem + (TEST_EVAL_SUFFIX if trial_set == "test" else "") + ".json"
+
+
+def trial_set_of_file(name: str) -> str:
+    """The trial set an eval*.json's name says it holds: test or development."""
+    return "test" if name.endswith(TEST_EVAL_SUFFIX + ".json") else "development"
 
 
 def is_eval_file(name: str) -> bool:
@@ -411,10 +425,13 @@ class SubtaskResult(RateResult):
     skill: str = ""
     mean_time: float | None = None
     """Mean execution time (s) of the subtask over the trials that completed it."""
+    reached: int | None = None
+    """Trials that got to this subtask (None in files of earlier versions): a subtask no trial
+    reached has no measured rate, whatever its 0.00 says."""
 
     def to_json(self) -> dict[str, Any]:
         return {"index": self.index, "skill": self.skill, "rate": self.rate, "ci": self.ci, "n": self.n,
-                "mean_time": self.mean_time}
+                "mean_time": self.mean_time, "reached": self.reached}
 
 
 SGR_VARIANTS: tuple[str, ...] = ("reported", "formula")
@@ -451,6 +468,14 @@ class EvalResult:
     execution_time_ci: list[float] | None = None
     trial_scores: list[list[float]] | None = None
     """Per trial, every subtask's score: what tables pool across seeds."""
+    trial_set: str = "development"
+    """Which trials were played (`detach.eval.trial_sets`): development (files of earlier
+    versions, which all played the run's own seed) or test."""
+    trial_seed: int | None = None
+    """The evaluation env's seed (None in files of earlier versions: the run's seed)."""
+    aids: list[str] | None = None
+    """What the run used that the paper's recipe does not (`detach.eval.aids`; None in files
+    of earlier versions: unknown, tables then read the run's config)."""
 
     @property
     def lh_success(self) -> RateResult:
@@ -464,7 +489,8 @@ class EvalResult:
                 "subtasks": [s.to_json() for s in self.subtasks],
                 "lh_mean": asdict(self.lh_mean), "lh_chain": asdict(self.lh_chain),
                 "mean_execution_time": self.mean_execution_time, "execution_time_ci": self.execution_time_ci,
-                "sgr": dict(self.sgr), "trial_scores": self.trial_scores}
+                "sgr": dict(self.sgr), "trial_scores": self.trial_scores, "trial_set": self.trial_set,
+                "trial_seed": self.trial_seed, "aids": self.aids}
 
     @classmethod
     def from_json(cls, data: Any, where: str = EVAL_FILE) -> "EvalResult":
@@ -474,7 +500,8 @@ class EvalResult:
             r = RateResult.from_json(s, w)
             subtasks.append(SubtaskResult(r.rate, r.ci, r.n, index=int(_need(s, "index", int, w)),
                                           skill=str(_need(s, "skill", str, w)),
-                                          mean_time=_number(s, "mean_time", w, optional=True)))
+                                          mean_time=_number(s, "mean_time", w, optional=True),
+                                          reached=_need(s, "reached", int, w, optional=True)))
         plan = [str(p) for p in _need(data, "plan", list, where)]
         ci = data.get("execution_time_ci") if isinstance(data, dict) else None
         chain_key = "lh_chain" if "lh_chain" in data else "lh_success"  # its name before the two LH rates
@@ -504,7 +531,23 @@ class EvalResult:
                    checkpoint=_need(data, "checkpoint", str, where, optional=True),
                    iteration=_need(data, "iteration", int, where, optional=True),
                    mean_execution_time=_number(data, "mean_execution_time", where, optional=True),
-                   execution_time_ci=[float(v) for v in ci] if isinstance(ci, list) else None)
+                   execution_time_ci=[float(v) for v in ci] if isinstance(ci, list) else None,
+                   trial_set=_trial_set(data, where), trial_seed=_need(data, "trial_seed", int, where, optional=True),
+                   aids=_aids(data, where))
+
+
+def _trial_set(data: Any, where: str) -> str:
+    value = data.get("trial_set", "development") if isinstance(data, dict) else "development"
+    if value not in ("development", "test"):
+        raise ContractError(f"{where}: 'trial_set' must be 'development' or 'test', found {value!r}")
+    return str(value)
+
+
+def _aids(data: Any, where: str) -> list[str] | None:
+    value = data.get("aids") if isinstance(data, dict) else None
+    if value is not None and not (isinstance(value, list) and all(isinstance(a, str) for a in value)):
+        raise ContractError(f"{where}: 'aids' must be a list of names")
+    return value
 
 
 MCAP_SCHEMAS: dict[str, dict[str, Any]] = {

@@ -66,11 +66,20 @@ def _reference(table: Table, name: str) -> list[list[str | Cell]]:
     return rows
 
 
+def one_trial_set(evals: Sequence[tuple[str, EvalResult]]) -> list[tuple[str, EvalResult]]:
+    """The evaluations of one trial set (`detach.eval.trial_sets`), so that a run evaluated on
+    both counts once: the held-out test trials where any run has them, else the development
+    trials (as `detach-run table` reads a sweep)."""
+    wanted = "test" if any(e.trial_set == "test" for _r, e in evals) else "development"
+    return [(r, e) for r, e in evals if e.trial_set == wanted]
+
+
 def build_tables(evals: Sequence[tuple[str, EvalResult]], labels: dict[str, str] | None = None,
                  per_run: bool = False, paper: bool = False) -> dict[str, ShownTable]:
     """Every table of `TABLES` over (run id, eval result) pairs. A table that cannot be
     built from these files carries the error instead (a malformed file must not crash)."""
     labels = labels or {}
+    evals = one_trial_set(evals)
     run_ids = list(dict.fromkeys(r for r, _e in evals))
     out = {}
     for name, build in TABLES.items():

@@ -52,7 +52,7 @@ def test_skills_table_markdown_layout() -> None:
     md = skills_table(_fixture()).to_markdown()
     lines = md.strip().splitlines()
     assert lines[2] == "| Method | Follow | Carry | Climb | Sit | LH1 (mean) | LH1 (chain) | n |"
-    assert lines[4].startswith("| TokenHSI | 1.00 [") and lines[5].startswith("| DETACH (ours) |")
+    assert lines[4].startswith("| TokenHSI | 1.00 [") and lines[5].startswith("| DETACH |")
     assert lines[5].split(" | ")[-2].startswith("0.50 [") and lines[5].endswith("| 4 (1 seed) |")
 
 
@@ -60,7 +60,7 @@ def test_generalization_table_egr_uses_lh1_of_same_model() -> None:
     table = generalization_table(_fixture())
     rows = {r[1]: r for r in table.rows}
     egr = table.keys.index("egr")
-    detach = rows["DETACH (ours)"]
+    detach = rows["DETACH"]
     assert detach[0] == "LH2" and detach[5].text() == "-"  # LH2 has no climb
     assert detach[egr].value == pytest.approx(0.75 / 0.75)  # EGR = LH2 (mean) / LH1 (mean), same model
     assert rows["TokenHSI"][egr].value == pytest.approx(0.5 / 0.625)
@@ -78,10 +78,28 @@ def test_ablation_table_rows() -> None:
     md = ablation_table(evals).to_markdown().splitlines()
     assert md[2] == "| Method | EGR | SGR | LH (mean) | LH (chain) | n |"
     assert md[4].startswith("| A1 (w/o env encoder) | 0.80 |")
-    assert md[5].startswith("| DETACH (ours) | 1.00 | 0.500 |")  # SGR "reported": mean(climb, sit) / 2
+    assert md[5].startswith("| DETACH | 1.00 | 0.500 |")  # SGR "reported": mean(climb, sit) / 2
 
 
 def test_the_composition_readings_substitutes_are_named_beside_their_baselines() -> None:
     ok = [1, 1, 1, 1]
     results = [_evals("lh1", model, LH1, [ok], [True]) for model in ("detach", "tokenhsi_adapt", "cml_incremental")]
-    assert [r[0] for r in skills_table(results).rows] == ["CML (incremental)", "TokenHSI (adapters)", "DETACH (ours)"]
+    assert [r[0] for r in skills_table(results).rows] == ["CML (incremental)", "TokenHSI (adapters)", "DETACH"]
+
+
+def test_a_subtask_few_trials_reached_says_so_in_the_table_and_csv() -> None:
+    """Zero-shot Climb at 0.00 means little when no trial got to Climb: the table says how
+    many trials reached each subtask, where some did not."""
+    outcomes = [TrialOutcome([1, 1, 0, 0], [5.0, 9.0, 3.0, math.nan], reached=[True, True, True, False]),
+                TrialOutcome([1, 0, 0, 0], [5.0, 9.0, math.nan, math.nan], reached=[True, True, False, False])]
+    result = summarize(LH1, outcomes, task="lh1", model="detach")
+    result.seed, result.trained_on = 0, "lh1"
+    back = EvalResult.from_json(result.to_json())
+    assert [s.reached for s in back.subtasks] == [2, 2, 1, 0]
+    table = skills_table([back])
+    md = table.to_markdown()
+    assert "0.00 [0.00, 0.66] (reached 1/2)" in md and "(reached 0/2)" in md
+    assert "1.00 [0.34, 1.00] |" in md  # every trial reached Follow: nothing added
+    header, row = table.to_csv().splitlines()[:2]
+    reached = dict(zip(header.split(","), row.split(",")))
+    assert (reached["follow_reached"], reached["climb_reached"], reached["sit_reached"]) == ("2", "1", "0")

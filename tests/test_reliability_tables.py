@@ -187,7 +187,8 @@ def test_a_sweep_table_reads_only_the_evaluations_the_sweep_asks_of_each_cell(
     follow = _run(runs, _eval(1.0), keys["follow"])
     (follow.path / "eval_lh1.json").write_text(json.dumps(_lh1_eval(0.0)))
     _run(runs, _lh1_eval(1.0), keys["lh1"])
-    assert cli.main(["table", str(sweep), "--runs", str(runs), "--preset", "tiny", "--out", str(tmp_path / "t")]) == 0
+    assert cli.main(["table", str(sweep), "--runs", str(runs), "--preset", "tiny", "--trial-set", "development",
+                     "--out", str(tmp_path / "t")]) == 0
     assert "1 evaluation(s) on a task the sweep does not evaluate their cell on left out" in capsys.readouterr().err
-    csv = (tmp_path / "t" / "mini.csv").read_text().splitlines()
-    assert csv[1].split(",")[1:] == ["1.0", "1.0", "1.0", "1.0", "1.0", "1.0", "10 (1 seed)"], csv
+    csv = (tmp_path / "t" / "mini_dev.csv").read_text().splitlines()
+    assert csv[1].split(",")[1:8] == ["1.0", "1.0", "1.0", "1.0", "1.0", "1.0", "10 (1 seed)"], csv

@@ -64,8 +64,9 @@ def test_a_sweep_runs_its_stages_in_order_each_starting_from_the_last(tmp_path: 
     assert lh1.train.init_from == str(runs["carry"].path.resolve())
     assert lh1.rewards.paid_skills == ("follow", "carry")  # zero-shot: climb and sit never paid
     assert "initialised from" in runs["lh1"].stdout_path.read_text()
-    assert (runs["follow"].path / "eval.json").exists() and not (runs["carry"].path / "eval.json").exists()
-    assert (runs["lh1"].path / "eval.json").exists() and (runs["lh1"].path / "eval_lh2.json").exists()
+    # the protocol's test_seed_offset: a sweep's cells play the held-out test trials only
+    assert (runs["follow"].path / "eval.test.json").exists() and not list(runs["carry"].path.glob("eval*.json"))
+    assert sorted(p.name for p in runs["lh1"].path.glob("eval*.json")) == ["eval.test.json", "eval_lh2.test.json"]
     printed = capsys.readouterr().out
     assert "[3/3]" in printed and "done" in printed
     # a second run of the sweep has nothing to do; a table of it has both LH columns
@@ -73,7 +74,7 @@ def test_a_sweep_runs_its_stages_in_order_each_starting_from_the_last(tmp_path: 
     assert cli.main(["--sweep", str(sweep), "--preset", "tiny", "--out", str(out)]) == 0
     assert {r.path: r.status_path.stat().st_mtime for r in find_runs(out)} == stamps
     assert cli.main(["table", str(sweep), "--runs", str(out)]) == 2, "the default cells were never run"
-    assert "no eval.json found" in capsys.readouterr().err
+    assert "no evaluation on the test trials found" in capsys.readouterr().err
     assert cli.main(["table", str(sweep), "--runs", str(out), "--preset", "tiny"]) == 0
     table = (out / "tables" / "mini.md").read_text()
     assert "LH1 (mean)" in table and "LH1 (chain)" in table and "| MLP |" in table
@@ -88,10 +89,10 @@ def test_a_sweep_runs_its_stages_in_order_each_starting_from_the_last(tmp_path: 
             assert all(len(v) == 2 for v in curve.values.values())
     # an evaluation the sweep asks for that a finished cell lacks is run, without training again
     lh1 = runs["lh1"]
-    (lh1.path / "eval_lh2.json").unlink()
+    (lh1.path / "eval_lh2.test.json").unlink()
     trained = lh1.stdout_path.read_text().count("stage: ")
     assert cli.main(["--sweep", str(sweep), "--preset", "tiny", "--out", str(out)]) == 0
-    assert (lh1.path / "eval_lh2.json").exists()
+    assert (lh1.path / "eval_lh2.test.json").exists()
     assert lh1.stdout_path.read_text().count("stage: ") == trained, "not trained again"
 
 
@@ -182,7 +183,7 @@ def test_more_seeds_train_only_the_cells_a_one_seed_sweep_lacks_and_their_table_
     assert cli.main(["table", str(sweep), "--preset", "tiny", "--seeds", "0,1", "--runs", str(out),
                      "--task", "follow", "--out", str(tmp_path / "tables")]) == 0
     pooled = (tmp_path / "tables" / "one_stage_follow_seeds0-1.csv").read_text()
-    assert "4 (2 seeds)" in pooled  # two trials of each seed
+    assert "4 (2 seeds: s0 " in pooled and "/ s1 " in pooled  # two trials of each seed, each seed's rate
     assert cli.main(["table", str(sweep), "--preset", "tiny", "--runs", str(out), "--task", "follow",
                      "--out", str(tmp_path / "tables")]) == 0
     assert "2 (1 seed)" in (tmp_path / "tables" / "one_stage_follow.csv").read_text()  # the preset's own seeds
@@ -244,8 +245,8 @@ def test_bad_sweeps_are_one_line_errors(tmp_path: Path, capsys: pytest.CaptureFi
     assert cli.main(["--sweep", str(sweep), "--preset", "loop", "--out", str(tmp_path / "runs")]) == 2
     err = capsys.readouterr().err
     assert "mini.yaml" in err
-    assert ("presets.loop.extends: expected another preset of this sweep (laptop, laptop_composition, quick, tiny), "
-            "found 'loop'") in err
+    assert ("presets.loop.extends: expected another preset of this sweep (laptop, laptop_paper, laptop_composition, "
+            "quick, tiny), found 'loop'") in err
 
 
 def test_a_preset_names_each_skills_teacher_by_stage(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -284,7 +285,7 @@ def test_a_preset_adds_a_stage_that_takes_over_the_evaluations_of_the_one_it_con
     assert cli.main(["--sweep", str(sweep), "--preset", "more", "--out", str(out)]) == 0
     runs = {r.status().cell.split("/")[0]: r for r in find_runs(out)}
     lh1, more = runs["lh1"], runs["lh1_more"]
-    assert sorted(p.name for p in more.path.glob("eval*.json")) == ["eval.json", "eval_lh2.json"]
+    assert sorted(p.name for p in more.path.glob("eval*.json")) == ["eval.test.json", "eval_lh2.test.json"]
     assert not list(lh1.path.glob("eval*.json"))  # its evaluations went to the stage continuing it
     config = more.config()
     assert config.train.max_iterations == 1 and config.train.init_from.startswith(str(lh1.path.resolve()))

@@ -121,5 +121,6 @@ def _outcome(prog: dict[str, torch.Tensor], i: int, dt: float) -> TrialOutcome:
     times = prog["exec_time"][i].float().tolist()
     last_end = int(prog["end"][i, -1])
     return TrialOutcome(scores=scores, times=times, completed=bool(prog["lh_success"][i]),
+                        reached=[bool(s >= 0) for s in prog["start"][i].tolist()],
                         total_time=float(prog["length"][i]) * dt,
                         completion_time=last_end * dt if last_end >= 0 else float("nan"))

@@ -30,6 +30,8 @@ class TrialOutcome:
     """Seconds from the start to plan completion, failure or time-out."""
     completion_time: float = math.nan
     """Seconds from the start to the completion of the last subtask (NaN if not completed)."""
+    reached: list[bool] | None = None
+    """Per subtask: the episode got to it (None: not recorded, as in fixtures)."""
 
 
 def summarize(plan: Sequence[str], outcomes: Sequence[TrialOutcome], confidence: float = 0.95,
@@ -40,8 +42,10 @@ def summarize(plan: Sequence[str], outcomes: Sequence[TrialOutcome], confidence:
         rate = success_rate([o.scores[i] for o in outcomes], confidence)
         times = [o.times[i] for o in outcomes if i < len(o.times) and not math.isnan(o.times[i])]
         mean_time = sum(times) / len(times) if times else None
+        known = [o.reached[i] for o in outcomes if o.reached is not None and i < len(o.reached)]
+        reached = sum(known) if outcomes and len(known) == len(outcomes) else None
         subtasks.append(SubtaskResult(rate.value, [rate.low, rate.high], rate.n, index=i, skill=skill,
-                                      mean_time=mean_time))
+                                      mean_time=mean_time, reached=reached))
     chain = success_rate([1.0 if o.completed else 0.0 for o in outcomes], confidence)
     mean = success_rate([sum(o.scores) / max(len(o.scores), 1) for o in outcomes], confidence)
     times = [o.completion_time for o in outcomes if not math.isnan(o.completion_time)]

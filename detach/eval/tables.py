@@ -14,7 +14,10 @@ see `detach.eval.metrics.sgr`). Several seeds of one (task, model) pool their tr
 is the mean over all trials with the interval of `success_rate` on them (Wilson for 0/1
 scores, normal for partial credit, as in eval.json); a cell also shows the spread across
 seeds (± the std of the per-seed rates) when there are several, and `n` the pooled trials and
-seeds. Files of older versions without per-trial scores pool trial-weighted rates.
+seeds; the CSV has each seed's rate in a column of its own (`<key>_s<seed>`). Files of older
+versions without per-trial scores pool trial-weighted rates. A row is a method with its aids
+(`detach.eval.aids`): the same model trained with and without a teacher are two rows, and the
+method column names every aid ("DETACH + chosen checkpoint").
 """
 
 from __future__ import annotations
@@ -25,11 +28,12 @@ import statistics
 from dataclasses import dataclass, field
 from typing import Callable, Iterable, Sequence
 
+from detach.eval.aids import label
 from detach.eval.metrics import LEARNED_SKILLS, NOVEL_SKILLS, egr, sgr, success_rate, wilson_interval
 from detach.run_contract import SGR_VARIANTS, EvalResult
 from detach.skills import canonical_name, display_name, skill_names
 
-METHOD_NAMES = {"cml": "CML", "tokenhsi": "TokenHSI", "detach": "DETACH (ours)",
+METHOD_NAMES = {"cml": "CML", "tokenhsi": "TokenHSI", "detach": "DETACH",
                 "cml_incremental": "CML (incremental)", "tokenhsi_adapt": "TokenHSI (adapters)",
                 "ablation_a1": "A1 (w/o env encoder)", "ablation_a2": "A2 (w/o self encoder)",
                 "mlp": "MLP"}
@@ -50,6 +54,11 @@ class Cell:
     spread: float | None = None
     """Std of the per-seed values (several seeds only)."""
     digits: int = 2
+    per_seed: dict[int, float] | None = None
+    """Each seed's value (the CSV's `<key>_s<seed>` columns)."""
+    reached: tuple[int, int] | None = None
+    """(trials that got to the subtask, trials) where known: a subtask few trials reached has
+    a rate of few trials (shown when some never got there; the CSV's `<key>_reached`)."""
 
     def text(self, with_ci: bool = True) -> str:
         if self.value is None:
@@ -59,6 +68,8 @@ class Cell:
             main += f" ±{self.spread:.{self.digits}f}"
         if with_ci and self.low is not None and self.high is not None:
             main += f" [{self.low:.{self.digits}f}, {self.high:.{self.digits}f}]"
+        if self.reached is not None and self.reached[0] < self.reached[1]:
+            main += f" (reached {self.reached[0]}/{self.reached[1]})"
         return main
 
 
@@ -82,13 +93,26 @@ class Table:
         lines += ["", *self.notes] if self.notes else []
         return "\n".join(lines) + "\n"
 
+    def _seeds(self) -> list[int]:
+        return sorted({s for row in self.rows for c in row if isinstance(c, Cell) and c.per_seed for s in c.per_seed})
+
     def to_csv(self) -> str:
-        """One row per table row, one column per key; numbers rounded to 4 decimals."""
+        """One row per table row, one column per key, then each number's per-seed values
+        (`<key>_s<seed>`, empty where a row lacks that seed); numbers rounded to 4 decimals."""
         out = io.StringIO()
         writer = csv.writer(out, lineterminator="\n")
-        writer.writerow(self.keys)
+        seeds = self._seeds()
+        seeded = [i for i in range(len(self.keys))
+                  if any(isinstance(row[i], Cell) and row[i].per_seed for row in self.rows)]
+        counted = [i for i in range(len(self.keys))
+                   if any(isinstance(row[i], Cell) and row[i].reached for row in self.rows)]
+        writer.writerow([*self.keys, *(f"{self.keys[i]}_s{s}" for i in seeded for s in seeds),
+                         *(f"{self.keys[i]}_reached" for i in counted)])
         for row in self.rows:
-            writer.writerow([_num(c.value) if isinstance(c, Cell) else c for c in row])
+            per_seed = [_num((c.per_seed or {}).get(s)) if isinstance(c := row[i], Cell) else ""
+                        for i in seeded for s in seeds]
+            reached = [c.reached[0] if isinstance(c := row[i], Cell) and c.reached else "" for i in counted]
+            writer.writerow([*(_num(c.value) if isinstance(c, Cell) else c for c in row), *per_seed, *reached])
         return out.getvalue()
 
     def to_ci_csv(self) -> str:
@@ -141,6 +165,19 @@ TrialValue = Callable[[EvalResult, list[float]], float | None]
 """A per-trial value of an evaluation (None: the evaluation does not have it)."""
 
 
+def subtask_cell(evals: Sequence[EvalResult], skill: str, occurrence: int = 0) -> Cell:
+    """A subtask's pooled rate, with how many trials reached it where every file says."""
+    cell = pool(evals, subtask_value(skill, occurrence))
+    counts = []
+    for e in evals:
+        k = _column(e, skill, occurrence)
+        if k is not None:
+            counts.append((e.subtasks[k].reached, e.trials))
+    if counts and all(r is not None for r, _n in counts):
+        cell.reached = (sum(r for r, _n in counts), sum(n for _r, n in counts))
+    return cell
+
+
 def subtask_value(skill: str, occurrence: int = 0) -> TrialValue:
     return lambda e, scores: None if (k := _column(e, skill, occurrence)) is None else scores[k]
 
@@ -164,47 +201,68 @@ def _fallback(e: EvalResult, value: TrialValue) -> float | None:
 
 
 def pool(evals: Sequence[EvalResult], value: TrialValue) -> Cell:
-    """A rate pooled over every trial of `evals`, its interval, and the spread across them."""
-    per_eval, trials = [], []
-    for e in evals:
+    """A rate over several seeds: the mean of the per-seed rates ± their std, with the
+    interval of every trial pooled (Wilson for 0/1 scores) and each seed's rate."""
+    by_seed: dict[int, list[float]] = {}
+    for i, e in enumerate(evals):
+        seed = e.seed if e.seed is not None else -1 - i  # unknown seeds count apart
         if e.trial_scores:
-            vals = [v for t in e.trial_scores if (v := value(e, t)) is not None]
-            if vals:
-                trials += vals
-                per_eval.append(sum(vals) / len(vals))
+            by_seed.setdefault(seed, []).extend(v for t in e.trial_scores if (v := value(e, t)) is not None)
         elif (rate := _fallback(e, value)) is not None:
-            per_eval.append(rate)
-            trials += [rate] * e.trials  # no per-trial scores: weight by trials
-    if not per_eval:
+            by_seed.setdefault(seed, []).extend([rate] * e.trials)  # no per-trial scores: weight by trials
+    per_seed = {s: sum(v) / len(v) for s, v in by_seed.items() if v}
+    if not per_seed:
         return Cell(None)
-    spread = statistics.stdev(per_eval) if len(per_eval) > 1 else None
+    trials = [v for vals in by_seed.values() for v in vals]
+    spread = statistics.stdev(per_seed.values()) if len(per_seed) > 1 else None
+    mean = sum(per_seed.values()) / len(per_seed)
     if all(e.trial_scores for e in evals):
         r = success_rate(trials)
-        return Cell(r.value, r.low, r.high, spread)
-    rate = sum(trials) / len(trials)
-    low, high = wilson_interval(rate * len(trials), len(trials))
-    return Cell(rate, low, high, spread)
+        low, high = r.low, r.high
+    else:
+        low, high = wilson_interval(sum(trials), len(trials))
+    return Cell(mean, low, high, spread, per_seed={s: r for s, r in per_seed.items() if s >= 0} or None)
 
 
 def _n(evals: Sequence[EvalResult]) -> str:
+    """Trials and seeds, and with several seeds each seed's LH mean: a recipe that works on
+    one seed only shows so in the row itself."""
     seeds = len({e.seed for e in evals})
-    return f"{sum(e.trials for e in evals)} ({seeds} seed{'s' if seeds != 1 else ''})"
+    text = f"{sum(e.trials for e in evals)} ({seeds} seed{'s' if seeds != 1 else ''}"
+    per_seed = pool(evals, lh_mean_value).per_seed or {}
+    if len(per_seed) > 1:
+        text += ": " + " / ".join(f"s{s} {v:.2f}" for s, v in sorted(per_seed.items()))
+    return text + ")"
 
 
-def _group(evals: Iterable[EvalResult]) -> dict[tuple[str, str, str], list[EvalResult]]:
-    groups: dict[tuple[str, str, str], list[EvalResult]] = {}
+Method = tuple[str, tuple[str, ...]]
+"""(model, aids): one row of a table."""
+
+
+def _method(e: EvalResult) -> Method:
+    return (e.model, tuple(e.aids or ()))
+
+
+def _group(evals: Iterable[EvalResult]) -> dict[tuple[str, str, Method], list[EvalResult]]:
+    groups: dict[tuple[str, str, Method], list[EvalResult]] = {}
     for e in evals:
-        key = (e.trained_on or e.task, e.task, e.model)
+        key = (e.trained_on or e.task, e.task, _method(e))
         groups.setdefault(key, []).append(e)
     return groups
 
 
-def _order(model: str) -> tuple[int, str]:
-    return (METHOD_ORDER.index(model) if model in METHOD_ORDER else 99, model)
+def _order(method: Method) -> tuple[int, str, int, tuple[str, ...]]:
+    model, aids = method
+    return (METHOD_ORDER.index(model) if model in METHOD_ORDER else 99, model, len(aids), aids)
 
 
-def _lh1_rate(groups, trained_on: str, model: str) -> float | None:
-    runs = groups.get((trained_on, "lh1", model))
+def method_label(method: Method) -> str:
+    model, aids = method
+    return label(METHOD_NAMES.get(model, model), aids)
+
+
+def _lh1_rate(groups, trained_on: str, method: Method) -> float | None:
+    runs = groups.get((trained_on, "lh1", method))
     return pool(runs, lh_mean_value).value if runs else None
 
 
@@ -230,10 +288,10 @@ def skills_table(evals: Sequence[EvalResult], task: str = "lh1", sgr_variant: st
                   ["Method", *(display_name(s) for s in columns), f"{task.upper()} (mean)",
                    f"{task.upper()} (chain)", "n"],
                   ["method", *columns, "lh_mean", "lh_chain", "n"])
-    for model in sorted({m for (_tr, t, m) in groups if t == task}, key=_order):
-        runs = [e for (tr, t, m), es in groups.items() if t == task and m == model for e in es]
-        row: list[str | Cell] = [METHOD_NAMES.get(model, model)]
-        row += [pool(runs, subtask_value(s)) for s in columns]
+    for method in sorted({m for (_tr, t, m) in groups if t == task}, key=_order):
+        runs = [e for (tr, t, m), es in groups.items() if t == task and m == method for e in es]
+        row: list[str | Cell] = [method_label(method)]
+        row += [subtask_cell(runs, s) for s in columns]
         row += [pool(runs, lh_mean_value), pool(runs, lh_chain_value), _n(runs)]
         table.rows.append(row)
     return table
@@ -253,8 +311,8 @@ def generalization_table(evals: Sequence[EvalResult], experiments: Sequence[str]
         for (trained_on, t, model), runs in sorted(groups.items(), key=lambda kv: _order(kv[0][2])):
             if t != task:
                 continue
-            row: list[str | Cell] = [task.upper(), METHOD_NAMES.get(model, model)]
-            row += [pool(runs, subtask_value(s, k)) for s, k in LH_COLUMNS]
+            row: list[str | Cell] = [task.upper(), method_label(model)]
+            row += [subtask_cell(runs, s, k) for s, k in LH_COLUMNS]
             times = [e.mean_execution_time for e in runs if e.mean_execution_time]
             row.append(Cell(sum(times) / len(times) if times else None, digits=1))
             lh = pool(runs, lh_mean_value)
@@ -276,7 +334,7 @@ def ablation_table(evals: Sequence[EvalResult], task: str = "lh3", sgr_variant: 
             continue
         lh = pool(runs, lh_mean_value)
         lh1 = _lh1_rate(groups, trained_on, model)
-        table.rows.append([METHOD_NAMES.get(model, model), Cell(egr(lh.value or 0.0, lh1) if lh1 else None),
+        table.rows.append([method_label(model), Cell(egr(lh.value or 0.0, lh1) if lh1 else None),
                            _sgr(runs, sgr_variant), lh, pool(runs, lh_chain_value), _n(runs)])
     return table
 

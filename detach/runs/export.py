@@ -22,7 +22,7 @@ from detach.config import ConfigError
 from detach.envs.lh_env import make_env
 from detach.models.rsl_rl_models import FlatPolicy
 from detach.run_contract import EXPORT_DIR, EXPORT_FORMATS, checkpoint_file, checkpoint_iteration, export_file
-from detach.runs.folder import RunFolder, atomic_write_json
+from detach.runs.folder import RunFolder, atomic_write_json, atomic_write_text
 from detach.runs.policy import load_policy
 from detach.train.checkpoints import check_model, load_module_weights, read_checkpoint, write_checkpoint
 from detach.train.setup import prepare_assets
@@ -83,8 +83,8 @@ def export_run(run_dir: Path, checkpoint: int | None = None, fmt: str = "onnx",
     target = Path(out) if out is not None else run.path / EXPORT_DIR / export_file(iteration, fmt)
     target.parent.mkdir(parents=True, exist_ok=True)
     obs = _check_observations(env, actor)
-    if fmt == "init":
-        return _export_init(state, actor, obs, policy, cfg, iteration, path, target)
+    if fmt in ("init", "policy"):
+        return _export_half(state, actor, obs, policy, cfg, iteration, path, target, run, critic=fmt == "init")
     if fmt == "onnx":
         _write_onnx(actor, target)
         run_file = _onnx_runner(target)
@@ -159,23 +159,33 @@ def _layout(policy: FlatPolicy, cfg, iteration: int, checkpoint: Path, fmt: str,
             "check": {"max_abs_diff": diff, "tolerance": TOLERANCE}}
 
 
+def _cell(run: RunFolder) -> str | None:
+    try:
+        return run.status().cell
+    except (OSError, ValueError):
+        return None
+
+
 def _half(weights: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
     """Floating weights in float16, except the input normalisers' statistics (their variances
     can leave float16's range) and anything not floating (counts, masks)."""
     return {k: v.half() if v.is_floating_point() and "normalizer" not in k else v.clone() for k, v in weights.items()}
 
 
-def _export_init(state: dict, actor: torch.nn.Module, obs: dict[str, torch.Tensor], policy: FlatPolicy, cfg,
-                 iteration: int, checkpoint: Path, target: Path) -> Exported:
+def _export_half(state: dict, actor: torch.nn.Module, obs: dict[str, torch.Tensor], policy: FlatPolicy, cfg,
+                 iteration: int, checkpoint: Path, target: Path, run: RunFolder, critic: bool) -> Exported:
     """`--format init`: the checkpoint's actor and critic (float16, normalisers float32) and its
     model names, for `train.init_from` (which reads a checkpoint file, `detach.train.setup`).
+    `--format policy`: the actor alone, with the run's resolved config in the JSON beside it,
+    so that `detach-run eval FILE` evaluates it without its run folder (what a study ships).
     Small enough to ship (~2 bytes per parameter): no optimiser, AMP replay or discriminator (a
     run started from it trains a fresh one). Checked: the actor with the float16 weights against
     the float32 one on the check observations."""
     infos = {"model": cfg.model_name, "model_kind": cfg.model.kind, "task": cfg.task_name,
              "character": cfg.env.character}
-    small = {"actor_state_dict": _half(state["actor_state_dict"]),
-             "critic_state_dict": _half(state["critic_state_dict"]), "iter": iteration, "infos": infos}
+    small = {"actor_state_dict": _half(state["actor_state_dict"]), "iter": iteration, "infos": infos}
+    if critic:
+        small["critic_state_dict"] = _half(state["critic_state_dict"])
     with torch.no_grad():
         eager = actor(obs)
         load_module_weights(actor, small["actor_state_dict"], target, "actor")
@@ -184,9 +194,16 @@ def _export_init(state: dict, actor: torch.nn.Module, obs: dict[str, torch.Tenso
         raise RuntimeError(f"the float16 policy differs from the float32 one by {diff:.3g} (> {INIT_TOLERANCE})")
     write_checkpoint(target, small)
     layout = target.with_name(target.name.removesuffix(".pt") + ".json")
-    info = _layout(policy, cfg, iteration, checkpoint, "init", target, diff)
+    info = _layout(policy, cfg, iteration, checkpoint, "init" if critic else "policy", target, diff)
     info["check"]["tolerance"] = INIT_TOLERANCE
     info["input"]["normalised"] = "by the actor's obs_normalizer, whose statistics the file holds"
-    info["use"] = f"train.init_from={target.name} (actor and critic; float16 weights, float32 normalisers)"
+    if critic:
+        info["use"] = f"train.init_from={target.name} (actor and critic; float16 weights, float32 normalisers)"
+    else:
+        info["use"] = f"detach-run eval {target.name} --task TASK --seed S (the actor; float16 weights)"
+        info["seed"], info["cell"] = cfg.seed, _cell(run)
+        config = target.with_name(target.name.removesuffix(".pt") + ".yaml")
+        atomic_write_text(config, run.config_path.read_text())
+        info["config"] = config.name
     atomic_write_json(layout, info)
     return Exported(target, layout, iteration, diff)

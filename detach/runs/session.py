@@ -9,18 +9,21 @@ Missing assets are built before any environment exists, with a visible progress 
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 from typing import Sequence
 
 import yaml
 
-from detach.config import load_task
+from detach.config import load_run_config, load_task
 from detach.config_validate import to_plain
 from detach.config_schema import RunConfig
 from detach.envs.lh_env import make_env
+from detach.eval.aids import run_aids
 from detach.eval.episodes import TrainingEpisodes, run_evaluation
+from detach.eval.trial_sets import TrialSetError, trial_seed
 from detach.eval.scene import scene_message
-from detach.run_contract import AGENT_PARAMS_FILE, checkpoint_iteration, eval_file
+from detach.run_contract import AGENT_PARAMS_FILE, TEST_EVAL_SUFFIX, EvalResult, checkpoint_iteration, eval_file
 from detach.runs.checkpoint_choice import select_checkpoint
 from detach.runs.folder import RunFolder, atomic_write_json, atomic_write_text, read_eval
 from detach.runs.mcap_log import RunLogWriter
@@ -35,8 +38,10 @@ from detach.train.setup import (
 
 def train_and_evaluate(run: RunFolder, resume: bool, eval_tasks: Sequence[Path] = (),
                        trials: int | None = None, evaluate: bool = True,
-                       device: str | None = None, checkpoint: Path | None = None) -> None:
-    """Train (or resume from `checkpoint`, default the newest), then evaluate."""
+                       device: str | None = None, checkpoint: Path | None = None,
+                       test_offset: int | None = None) -> None:
+    """Train (or resume from `checkpoint`, default the newest), then evaluate (on the test
+    trials of `test_offset` when given: a sweep cell's final evaluation)."""
     cfg = run.config()
     device = device or cfg.device
     checkpoint = (checkpoint or run.latest_checkpoint()) if resume else None
@@ -68,9 +73,9 @@ def train_and_evaluate(run: RunFolder, resume: bool, eval_tasks: Sequence[Path] 
         del env, runner  # the validation env takes their place
         print(select_checkpoint(run, cfg, device), flush=True)
     if evaluate:
-        evaluate_run(run, None, None, trials, device)
+        evaluate_run(run, None, None, trials, device, test_offset=test_offset)
         for task in eval_tasks:
-            evaluate_run(run, task, None, trials, device)
+            evaluate_run(run, task, None, trials, device, test_offset=test_offset)
 
 
 def write_agent_params(run: RunFolder, cfg: RunConfig, env) -> Path:
@@ -92,19 +97,36 @@ def eval_config(cfg: RunConfig, task_path: Path | None) -> RunConfig:
     return dataclasses.replace(cfg, task=load_task(task_path), task_name=Path(task_path).stem)
 
 
-def eval_path(run: RunFolder, train_cfg: RunConfig, cfg: RunConfig) -> Path:
+def eval_path(run: RunFolder, train_cfg: RunConfig, cfg: RunConfig, trial_set: str = "development") -> Path:
     """Where an evaluation of `cfg` (`eval_config` of the run's `train_cfg`) is written:
-    eval.json on the run's own task, eval_<task>.json on another."""
-    return run.path / eval_file(None if cfg.task_name == train_cfg.task_name else cfg.task_name)
+    eval.json on the run's own task, eval_<task>.json on another (eval.test.json,
+    eval_<task>.test.json on the test trials)."""
+    return run.path / eval_file(None if cfg.task_name == train_cfg.task_name else cfg.task_name, trial_set)
 
 
-def smaller_evaluation(run: RunFolder, task_path: Path | None, trials: int | None) -> str | None:
+def _trial_set(run: RunFolder, test_offset: int | None) -> str:
+    """The trial set an evaluation plays: the test set only for a sweep cell (the tables'
+    figures), so that no probe or hand-made run can play or overwrite it."""
+    if test_offset is None:
+        return "development"
+    try:
+        cell = run.status().cell
+    except (OSError, ValueError):
+        cell = None
+    if cell is None:
+        raise TrialSetError(f"{run.path}: the test trials are played only for a sweep's cells (detach-run sweep); "
+                            "evaluate other runs on the development trials (without --test-trials)")
+    return "test"
+
+
+def smaller_evaluation(run: RunFolder, task_path: Path | None, trials: int | None,
+                       test_offset: int | None = None) -> str | None:
     """Why evaluating with `trials` would replace a larger evaluation of the same task (None
     when it would not): a quick check must not overwrite the 100-trial figure of a table."""
     train_cfg = run.config()
     cfg = eval_config(train_cfg, task_path)
     trials = cfg.eval.trials if trials is None else trials
-    path = eval_path(run, train_cfg, cfg)
+    path = eval_path(run, train_cfg, cfg, "development" if test_offset is None else "test")
     try:
         old = read_eval(path) if path.exists() else None
     except (OSError, ValueError):
@@ -116,40 +138,91 @@ def smaller_evaluation(run: RunFolder, task_path: Path | None, trials: int | Non
 
 
 def evaluate_run(run: RunFolder, task_path: Path | None, checkpoint: Path | None,
-                 trials: int | None, device: str | None = None, record: bool = True) -> Path:
-    """Evaluate the policy; writes eval.json (own task) or eval_<task>.json (another task).
+                 trials: int | None, device: str | None = None, record: bool = True,
+                 test_offset: int | None = None) -> Path:
+    """Evaluate the policy; writes eval.json (own task) or eval_<task>.json (another task),
+    on the development trials, or with `test_offset` (a sweep cell only) on the test trials,
+    into eval.test.json / eval_<task>.test.json.
 
     On the run's own task (and with `record`) the scene and every trial go to log.mcap;
     never pass record=True while another process still writes that log."""
+    trial_set = _trial_set(run, test_offset)
     train_cfg = run.config()
     cfg = eval_config(train_cfg, task_path)
-    device = device or cfg.device
-    checkpoint = checkpoint or run.policy_checkpoint(device)
+    checkpoint = checkpoint or run.policy_checkpoint(device or cfg.device)
     if checkpoint is None:
         raise CheckpointError("no readable checkpoint to evaluate", str(run.checkpoints))
+    own = cfg.task_name == train_cfg.task_name
+    log = RunLogWriter(run.log_path, append=True) if own and record else None
+    try:
+        result = _evaluate(cfg, train_cfg, checkpoint, trials, device, trial_set, test_offset, log)
+    finally:
+        if log is not None:
+            log.close()
+    result.checkpoint = str(checkpoint.relative_to(run.path)) if checkpoint.is_relative_to(run.path) \
+        else str(checkpoint)
+    path = eval_path(run, train_cfg, cfg, trial_set)
+    atomic_write_json(path, result.to_json())
+    return path
+
+
+def evaluate_policy_file(policy: Path, task_path: Path | None, seed: int | None, trials: int | None,
+                         device: str | None = None, test_offset: int | None = None) -> Path:
+    """Evaluate an exported policy (`detach-run export --format policy`) without its run
+    folder: the run's config from the file beside it, seed `seed` (default the run's). Writes
+    <file>.eval_<task>_s<seed>.json (`.test.json` on the test trials, which only a sweep cell's
+    policy may play) beside the policy."""
+    info = read_policy_info(policy)
+    train_cfg = load_run_config(policy.parent / str(info["config"]))
+    if seed is not None:
+        train_cfg = dataclasses.replace(train_cfg, seed=int(seed))
+    if test_offset is not None and not info.get("cell"):
+        raise TrialSetError(f"{policy}: the test trials are played only for a sweep cell's policy (its JSON "
+                            "names no cell); evaluate it on the development trials (without --test-trials)")
+    trial_set = "development" if test_offset is None else "test"
+    cfg = eval_config(train_cfg, task_path)
+    result = _evaluate(cfg, train_cfg, policy, trials, device, trial_set, test_offset, None)
+    result.checkpoint = policy.name
+    stem = policy.name.removesuffix(".pt")
+    suffix = TEST_EVAL_SUFFIX if trial_set == "test" else ""
+    path = policy.with_name(f"{stem}.eval_{cfg.task_name}_s{cfg.seed}{suffix}.json")
+    atomic_write_json(path, result.to_json())
+    return path
+
+
+def read_policy_info(policy: Path) -> dict:
+    """The JSON beside an exported policy, checked to be a `--format policy` export."""
+    layout = policy.with_name(policy.name.removesuffix(".pt") + ".json")
+    try:
+        info = json.loads(layout.read_text())
+    except (OSError, ValueError) as exc:
+        raise CheckpointError(f"cannot read the policy's description {layout.name} ({exc})", str(policy)) from None
+    if not isinstance(info, dict) or info.get("format") != "policy" or not isinstance(info.get("config"), str):
+        raise CheckpointError(f"{layout.name} does not describe a `detach-run export --format policy` file",
+                              str(policy))
+    return info
+
+
+def _evaluate(cfg: RunConfig, train_cfg: RunConfig, checkpoint: Path, trials: int | None, device: str | None,
+              trial_set: str, test_offset: int | None, log: RunLogWriter | None) -> EvalResult:
+    """Play `trials` trials of `cfg`'s task (the set `trial_set`) with the checkpoint's
+    actor under mean actions; the result names its model, seed, trials and aids."""
+    device = device or cfg.device
     trials = cfg.eval.trials if trials is None else trials
     prepare_assets(cfg.task)
     apply_torch_threads(cfg)
     seed_everything(cfg.seed + 1)
-    env = make_env(cfg, num_envs=min(cfg.eval.num_envs, trials), device=device, eval_mode=True)
+    env_seed = trial_seed(cfg.seed, trial_set, test_offset)
+    env = make_env(cfg, num_envs=min(cfg.eval.num_envs, trials), device=device, eval_mode=True, seed=env_seed)
     actor, state = load_policy(cfg, env, checkpoint, device)
-    own = cfg.task_name == train_cfg.task_name
-    log = RunLogWriter(run.log_path, append=True) if own and record else None
-    try:
-        result = run_evaluation(env, lambda obs: actor(obs), trials, cfg, recorder=log,
-                                episode_id=max(int(state.get("iter", 0)), 0))
-    finally:
-        if log is not None:
-            log.close()
+    result = run_evaluation(env, lambda obs: actor(obs), trials, cfg, recorder=log,
+                            episode_id=max(int(state.get("iter", 0)), 0))
     result.trained_on, result.model, result.seed = train_cfg.task_name, cfg.model_name, cfg.seed
-    result.checkpoint = str(checkpoint.relative_to(run.path)) if checkpoint.is_relative_to(run.path) \
-        else str(checkpoint)
     result.iteration = int(state.get("iter", -1))
-    path = eval_path(run, train_cfg, cfg)
-    atomic_write_json(path, result.to_json())
+    result.trial_set, result.trial_seed, result.aids = trial_set, env_seed, run_aids(train_cfg)
     mean, chain = result.lh_mean, result.lh_chain
-    print(f"evaluation on {cfg.task_name} over {result.trials} trials: "
+    print(f"evaluation on {cfg.task_name} over {result.trials} {trial_set} trials: "
           + ", ".join(f"{s.skill} {s.rate:.2f}" for s in result.subtasks)
           + f"; LH (mean of subtasks) {mean.rate:.2f} [{mean.ci[0]:.2f}, {mean.ci[1]:.2f}], "
           f"LH (whole chain) {chain.rate:.2f} [{chain.ci[0]:.2f}, {chain.ci[1]:.2f}]", flush=True)
-    return path
+    return result

@@ -44,6 +44,7 @@ from typing import BinaryIO, Collection, Iterable, Literal, Mapping, Sequence
 
 from detach.config import find_config_file, load_merged, resolve
 from detach.config_validate import Builder
+from detach.eval.trial_sets import TrialSetError, check_test_offset
 from detach.run_contract import eval_file
 from detach.runs.folder import RunFolder, find_runs
 from detach.runs.sweep_eta import SweepClock
@@ -112,6 +113,9 @@ class SweepCfg:
     eval: dict[str, tuple[str, ...]] = field(default_factory=dict)
     """Stage name -> tasks its runs are evaluated on (its own task writes eval.json)."""
     eval_trials: int = 100
+    test_seed_offset: int | None = None
+    """The held-out test trials of every cell (`detach.eval.trial_sets`): its evaluations play
+    env seed = run seed + this and write eval.test.json; None: the development trials."""
     table: Literal["skills", "generalization", "ablation"] = "skills"
     presets: dict[str, PresetCfg] = field(default_factory=dict)
     preset: str | None = None
@@ -132,6 +136,13 @@ class Cell:
     key: str
     teachers: tuple[tuple[str, str], ...] = ()
     """(skill, key of the ancestor cell that teaches it, or `oracle`)."""
+    test_offset: int | None = None
+    """The sweep's `test_seed_offset` (not part of the key: where a cell is evaluated does not
+    change what it trains)."""
+
+    @property
+    def trial_set(self) -> str:
+        return "development" if self.test_offset is None else "test"
 
 
 def task_file(sweep_path: Path, name: str) -> Path:
@@ -175,6 +186,11 @@ def load_sweep(path: Path, quick: bool = False, preset: str | None = None,
             raise builder.error(("eval", stage_name), f"unknown stage; stages: {', '.join(names)}")
         for task in tasks:
             _require_task(builder, path, ("eval", stage_name), task)
+    if sweep.test_seed_offset is not None:
+        try:
+            check_test_offset(sweep.test_seed_offset)
+        except TrialSetError as exc:
+            raise builder.error(("test_seed_offset",), str(exc)) from None
     preset = "quick" if quick and preset is None else preset
     if preset is not None:
         if preset not in sweep.presets:
@@ -291,7 +307,8 @@ def cells(sweep: SweepCfg, sweep_path: Path) -> list[Cell]:
                 evals = tuple(task_file(sweep_path, t) for t in sweep.eval.get(stage.name, ()))
                 out[(stage.name, model, seed)] = Cell(stage.name, task, trained, seed, overrides, presets,
                                                       parent.key if parent else None, evals,
-                                                      f"{stage.name}/{trained}/s{seed}/{_digest(defining)}", teachers)
+                                                      f"{stage.name}/{trained}/s{seed}/{_digest(defining)}", teachers,
+                                                      sweep.test_seed_offset)
     return list(out.values())
 
 
@@ -321,7 +338,8 @@ def existing_runs(out: Path) -> dict[str, RunFolder]:
 # ------------------------------------------------------------------------------- commands
 def _missing_evals(cell: Cell, run: RunFolder) -> list[Path]:
     """Evaluation tasks of the cell whose eval file the run does not have yet."""
-    return [t for t in cell.evals if not (run.path / eval_file(None if t.stem == cell.task.stem else t.stem)).exists()]
+    return [t for t in cell.evals
+            if not (run.path / eval_file(None if t.stem == cell.task.stem else t.stem, cell.trial_set)).exists()]
 
 
 def cell_commands(cell: Cell, previous: RunFolder | None, parent: RunFolder | None, out: Path,
@@ -332,7 +350,8 @@ def cell_commands(cell: Cell, previous: RunFolder | None, parent: RunFolder | No
     python = [sys.executable, "-m", "detach.cli"]
     own = any(t.stem == cell.task.stem for t in cell.evals)
     others = [arg for t in cell.evals if t.stem != cell.task.stem for arg in ("--eval-on", str(t))]
-    common = ["--trials", str(trials), "--device", device]
+    common = ["--trials", str(trials), "--device", device,
+              *(["--test-trials", str(cell.test_offset)] if cell.test_offset is not None else [])]
     if previous is not None:
         state = previous.status().state
         if state == "finished":

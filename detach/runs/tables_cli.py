@@ -1,6 +1,10 @@
 """`detach-run table`: the paper's tables from the eval*.json files of runs or a sweep.
 
-Three guards keep a table honest:
+Four guards keep a table honest:
+- a table reads one trial set (`detach.eval.trial_sets`): a sweep's the held-out test trials
+  (its `test_seed_offset`), a runs folder's the development trials, and says which in a note;
+  each row names its aids, computed from the configs of the cell and the cells it started
+  from (`detach.eval.aids`);
 - a sweep's table reads the evaluations its `eval:` asks of each cell, no others: a phase-A
   cell evaluated by hand on LH1 must not pool into the LH1 column;
 - one evaluation per sweep cell and evaluated task, the newest: a cell trained twice (two
@@ -19,8 +23,10 @@ from pathlib import Path
 from typing import Callable, Collection, Mapping, Sequence
 
 from detach.config import ConfigError
+from detach.eval.aids import merge_aids, run_aids
 from detach.eval.tables import TABLES, render
-from detach.run_contract import EVAL_GLOB, EvalResult
+from detach.eval.trial_sets import describe
+from detach.run_contract import EVAL_GLOB, EvalResult, trial_set_of_file
 from detach.runs.folder import RunFolder, atomic_write_text, find_runs, read_eval
 
 Report = Callable[[str], None]
@@ -37,13 +43,27 @@ class _Found:
     written: float
 
 
+AidsOf = Callable[[RunFolder], list[str]]
+
+
+def own_aids(run: RunFolder) -> list[str]:
+    """The aids of a run's own config ([] where it does not read back)."""
+    try:
+        return run_aids(run.config())
+    except (OSError, ValueError, ConfigError):
+        return []
+
+
 def collect_evals(runs: list[RunFolder], cells: Mapping[str, Collection[str]] | None = None,
-                  report: Report = _stderr) -> list[EvalResult]:
+                  report: Report = _stderr, trial_set: str | None = None,
+                  aids_of: AidsOf | None = None) -> list[EvalResult]:
     """Every usable eval*.json of the given runs (when `cells` is given: of those sweep cells,
-    on the tasks it names for each); of a sweep cell evaluated more than once on a task, only
-    the newest evaluation."""
+    on the tasks it names for each; with `trial_set`, of that set only); of a sweep cell
+    evaluated more than once on a task, only the newest evaluation. `aids_of` names each
+    run's aids (default: those its evaluation recorded, else its own config's)."""
     found: dict[tuple[str, ...], _Found] = {}
-    duplicates = unasked = 0
+    duplicates = unasked = other_set = 0
+    aids_of = aids_of or own_aids
     for run in runs:
         try:
             cell = run.status().cell
@@ -52,16 +72,24 @@ def collect_evals(runs: list[RunFolder], cells: Mapping[str, Collection[str]] | 
         if cells is not None and cell not in cells:
             continue
         for path in sorted(run.path.glob(EVAL_GLOB)):
+            if trial_set is not None and trial_set_of_file(path.name) != trial_set:
+                other_set += 1
+                continue
             try:
                 result = read_eval(path)
                 written = path.stat().st_mtime
             except (OSError, ValueError) as exc:
                 report(f"skipped {path}: {exc}")
                 continue
+            if trial_set is not None and result.trial_set != trial_set:
+                report(f"skipped {path}: it holds {result.trial_set} trials, not {trial_set} trials as its name says")
+                continue
+            if cells is not None or result.aids is None:
+                result.aids = aids_of(run)
             if cells is not None and result.task not in cells[cell]:
                 unasked += 1
                 continue
-            key = ("cell", cell, result.task) if cell else ("file", str(path))
+            key = ("cell", cell, result.task, result.trial_set) if cell else ("file", str(path))
             previous = found.get(key)
             if previous is not None:
                 duplicates += 1
@@ -79,30 +107,45 @@ def collect_evals(runs: list[RunFolder], cells: Mapping[str, Collection[str]] | 
 
 def print_table(source: Path, runs_dir: Path, kind: str | None, out: Path | None,
                 task: str | None = None, sgr_variant: str = "reported", preset: str | None = None,
-                seeds: Sequence[int] | None = None) -> int:
+                seeds: Sequence[int] | None = None, trial_set: str | None = None) -> int:
     """Print the table(s) of a runs folder or of a sweep's cells (under `preset`, None = the
     sweep's default settings; of `seeds` instead of its own when given) and write .md, .csv,
-    _ci.csv and .tex beside each."""
+    _ci.csv and .tex beside each. `trial_set` (None: a sweep's test set where it has one, else
+    the development set) picks the evaluations; a development table of a sweep with a test set
+    writes files ending in `_dev`."""
     if not source.exists():
         raise ConfigError("sweep file or runs folder not found", str(source))
     if source.is_dir() and seeds is not None:
         raise ConfigError("--seeds: with a sweep file only (a runs folder's table pools every run in it)", str(source))
     seeded = "" if seeds is None else "_seeds" + "-".join(map(str, seeds))  # the preset's own files stay
+    offset = None
     if source.is_dir():
-        evals, kinds, name = collect_evals(find_runs(source)), [kind] if kind else list(TABLES), source.name
+        trial_set = trial_set or "development"
+        evals = collect_evals(find_runs(source), trial_set=trial_set)
+        kinds, name = [kind] if kind else list(TABLES), source.name
         out = out or source / "tables"
         curves = None
     else:
         from detach.runs.sweep import cell_evaluations, existing_runs, load_sweep
 
         sweep = load_sweep(source, preset=preset, seeds=seeds)
+        offset = sweep.test_seed_offset
+        trial_set = trial_set or ("test" if offset is not None else "development")
+        if trial_set == "test" and offset is None:
+            raise ConfigError("--trial-set test: this sweep has no test_seed_offset (no held-out trials)", str(source))
         cells = cell_evaluations(source, preset, seeds)
-        evals = collect_evals(find_runs(runs_dir), cells)
+        runs = existing_runs(runs_dir)
+        evals = collect_evals(find_runs(runs_dir), cells, trial_set=trial_set,
+                              aids_of=_chain_aids(source, sweep, runs, trial_set == "test"))
         kinds, name = [kind or sweep.table], sweep.name
         out = out or runs_dir / "tables"
-        curves = {key: run for key, run in existing_runs(runs_dir).items() if key in cells}
+        curves = {key: run for key, run in runs.items() if key in cells}
+    if trial_set == "development" and offset is not None:
+        seeded += "_dev"  # the sweep's own name is its test table's
     if not evals:
-        raise ConfigError("no eval.json found (train and evaluate runs first)", str(source))
+        raise ConfigError(f"no evaluation on the {trial_set} trials found (train and evaluate runs first"
+                          + ("; `detach-run sweep` evaluates its finished cells on them)" if trial_set == "test"
+                             else ")"), str(source))
     _check_writable(out)
     evaluated = sorted({e.task for e in evals})
     if task is not None and task not in evaluated:  # else an empty table, exit 0: a typo looks like no result
@@ -110,6 +153,7 @@ def print_table(source: Path, runs_dir: Path, kind: str | None, out: Path | None
                           str(source))
     for k in kinds:
         table = render(k, evals, task, sgr_variant)
+        table.notes.append(describe(trial_set, offset))
         if not table.rows:  # e.g. a sweep in progress: phase A evaluated, its LH1 cells not yet
             _stderr(f"{k}: no run evaluated on this table's task yet (evaluated: {', '.join(evaluated)}; "
                     f"--task NAME tables one of those); nothing written")
@@ -136,6 +180,55 @@ def print_table(source: Path, runs_dir: Path, kind: str | None, out: Path | None
         for path in write_sweep_curves(curves, out, name + seeded, title, _stderr):
             print(f"written: {path}")
     return 0
+
+
+AFTER_TEST = "recipe chosen after a test evaluation"
+"""The aid that marks a cell trained after the test trials of another recipe of its stage,
+model and seed were played in the same runs folder: its recipe may have been picked on them."""
+
+
+def _chain_aids(source: Path, sweep, runs: Mapping[str, RunFolder], test: bool) -> AidsOf:
+    """A sweep cell's aids: its own and those of the cells it started from (the policy
+    inherits them), plus `AFTER_TEST` (test tables) where `_after_test` says so."""
+    from detach.runs.sweep import cells as sweep_cells
+
+    parents = {c.key: c.parent for c in sweep_cells(sweep, source)}
+
+    def aids_of(run: RunFolder) -> list[str]:
+        try:
+            key = run.status().cell
+        except (OSError, ValueError):
+            key = None
+        chain, at = [], key
+        while at is not None and at in runs:
+            chain.append(own_aids(runs[at]))
+            at = parents.get(at)
+        aids = merge_aids(reversed(chain)) if chain else own_aids(run)
+        if test and key is not None and _after_test(key, run, runs):
+            aids.append(AFTER_TEST)
+        return aids
+
+    return aids_of
+
+
+def _after_test(key: str, run: RunFolder, runs: Mapping[str, RunFolder]) -> bool:
+    """Another cell of the same stage, model and seed (another recipe: another digest) had
+    a test evaluation on file before this cell's run was created."""
+    prefix = key.rsplit("/", 1)[0] + "/"
+    try:
+        created = run.config_path.stat().st_mtime
+    except OSError:
+        return False
+    for other_key, other in runs.items():
+        if other_key == key or not other_key.startswith(prefix):
+            continue
+        for path in other.path.glob(EVAL_GLOB):
+            try:
+                if trial_set_of_file(path.name) == "test" and path.stat().st_mtime < created:
+                    return True
+            except OSError:
+                continue
+    return False
 
 
 def _check_writable(out: Path) -> None:

@@ -15,14 +15,15 @@ import torch
 from detach.config_schema import RunConfig
 from detach.envs.lh_env import LHEnv, make_env
 from detach.eval.episodes import run_evaluation
+from detach.eval.trial_sets import VALIDATION_SEED_OFFSET, trial_seed
 
-VALIDATION_SEED_OFFSET = 7919
-"""The validation env's seed is the run's plus this: its trials are not the evaluation's
-(whose env takes the run's seed)."""
+__all__ = ["VALIDATION_SEED_OFFSET", "validation_env", "validation_score", "validation_seed"]
 
 
 def validation_seed(cfg: RunConfig) -> int:
-    return int(cfg.seed) + VALIDATION_SEED_OFFSET
+    """The validation set's env seed (`detach.eval.trial_sets`): neither the development
+    trials nor the test trials."""
+    return trial_seed(cfg.seed, "validation")
 
 
 def validation_env(cfg: RunConfig, trials: int, device: str) -> LHEnv:

@@ -43,8 +43,10 @@ class UnreadableCheckpoint(CheckpointError):
     """A truncated or corrupt file: an older checkpoint may stand in for it."""
 
 
-def read_checkpoint(path: Path, map_location: str | torch.device | None = "cpu") -> dict[str, Any]:
-    """The checkpoint's dict, loaded with `weights_only=True`; CheckpointError otherwise."""
+def read_checkpoint(path: Path, map_location: str | torch.device | None = "cpu",
+                    actor_only: bool = False) -> dict[str, Any]:
+    """The checkpoint's dict, loaded with `weights_only=True`; CheckpointError otherwise.
+    `actor_only`: a policy without its critic (`detach-run export --format policy`) will do."""
     try:
         state = torch.load(path, map_location=map_location, weights_only=True)
     except FileNotFoundError:
@@ -58,8 +60,9 @@ def read_checkpoint(path: Path, map_location: str | torch.device | None = "cpu")
     except (RuntimeError, EOFError, KeyError, ValueError, OSError, IndexError, TypeError) as exc:
         raise UnreadableCheckpoint(f"unreadable checkpoint, truncated or corrupt ({type(exc).__name__}: "
                               f"{first_line(exc)})", str(path)) from None
-    if not isinstance(state, dict) or any(k not in state for k in REQUIRED_KEYS):
-        raise CheckpointError(f"not a detach checkpoint (expected the keys {', '.join(REQUIRED_KEYS)})",
+    required = [k for k in REQUIRED_KEYS if not (actor_only and k == "critic_state_dict")]
+    if not isinstance(state, dict) or any(k not in state for k in required):
+        raise CheckpointError(f"not a detach checkpoint (expected the keys {', '.join(required)})",
                               str(path))
     return state
 

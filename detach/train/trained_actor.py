@@ -24,7 +24,7 @@ def load_trained_actor(cfg: RunConfig, env: LHEnv, checkpoint: Path, device: str
                        ) -> tuple[torch.nn.Module, dict[str, Any]]:
     """(actor in eval mode on `device`, the checkpoint's dict) for `env`, after checking that
     the checkpoint holds `cfg`'s model (CheckpointError naming the file otherwise)."""
-    state = read_checkpoint(checkpoint, device)
+    state = read_checkpoint(checkpoint, device, actor_only=True)
     check_model(state, checkpoint, cfg.model_name, cfg.model.kind)
     actor, _critic = build_actor_critic(cfg.model, env.obs_spec, env.get_observations(),
                                         num_actions=env.num_actions, default_std=default_action_std(cfg))
