@@ -345,7 +345,7 @@ class TrainCfg:
     evaluation env of its own seed (not the evaluation's), and the run starts from the one
     with the highest LH mean (the first on a tie). Why: which arm pose lets a Follow policy
     reach the box depends on where that policy holds its arms, so one fixed pose favours some
-    models and handicaps others (results/laptop/README.md, "the stage's starting point")."""
+    models and handicaps others (results/laptop/NOTEBOOK.md, "the stage's starting point")."""
     init_choice_trials: int = 50
     """Validation trials per entry of `init_action_mean_choices`."""
     select_checkpoint_trials: int = 0
@@ -356,7 +356,7 @@ class TrainCfg:
     later stage's `init_from` use it; resuming trains on from the newest and chooses again.
     Why: a later stage of the protocol peaks and then drifts; three Carry runs from one start
     scored 0.885, 0.86 and 0.92 after 20 iterations, 0.805, 0.68 and 0.735 after 50
-    (results/laptop/README.md). 0: the newest checkpoint is the policy."""
+    (results/laptop/NOTEBOOK.md). 0: the newest checkpoint is the policy."""
     init_normalizers: Literal["merge", "restart", "keep"] = "merge"
     """With `init_from`: `merge` (default) keeps the source's observation statistics for the
     inputs it saw vary and takes this run's task's (from its first update) for those it never

@@ -1,7 +1,7 @@
 """`env.mid_task_init_prob`: Carry episodes that start with the box carried part of the way
 (TokenHSI's hybrid initialisation from box clips), Climb episodes that start beside the
 object. Without them a Carry policy that never grasps never learns what holding and carrying
-pay (results/laptop/README.md, "Carry")."""
+pay (results/laptop/NOTEBOOK.md, "Carry")."""
 
 from __future__ import annotations
 

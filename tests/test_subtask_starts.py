@@ -104,7 +104,7 @@ def test_a_start_the_oracle_cannot_make_is_a_config_error(tmp_path: Path, capsys
 
 def test_a_box_held_into_climb_is_let_go(late_env) -> None:
     """Carry's transition may fire with the box still held; Climb must not keep it (a Climb
-    policy that held the box it was to climb carried it away: results/laptop/README.md)."""
+    policy that held the box it was to climb carried it away: results/laptop/NOTEBOOK.md)."""
     env = late_env
     sub = env.tracker.subtask.clone()
     box = env.plan[1].obj

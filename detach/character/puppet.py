@@ -114,7 +114,7 @@ class Puppet(Character):
     decides a grasp (both within `GRASP_HAND_DIST` of the box): Follow's arms reached Carry's
     boxes late, and with the torso and arms started at the oracle's reach pose a Follow cell
     grasped within 2 s from 94% of 48 evaluation starts instead of 4%, while a Follow cell whose
-    own arms already reached the box lost with the same pose (results/laptop/README.md)."""
+    own arms already reached the box lost with the same pose (results/laptop/NOTEBOOK.md)."""
 
     # ------------------------------------------------------------------ building
     def add_root(self, pelvis: mujoco.MjsBody) -> None:

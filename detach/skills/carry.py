@@ -172,7 +172,7 @@ class Carry(Skill):
         the box and carry it home without learning a new input first. The point stays put
         while the box is carried: a goal that moves with the pelvis (the destination plus the
         current pelvis-to-box offset, which turns with the heading) was chased round in circles
-        about 1 m from it (results/laptop/README.md, attempt 14)."""
+        about 1 m from it (results/laptop/NOTEBOOK.md, attempt 14)."""
         carrying = box_lifted(ctx) | box_at_destination(ctx) | self.held(ctx)
         reach = (ctx.state.root_pos[:, :2] - ctx.obj_pos[:, :2]).norm(dim=-1, keepdim=True)
         back = ctx.obj_pos[:, :2] - ctx.target[:, :2]
@@ -204,7 +204,7 @@ class Carry(Skill):
         policy never sees what holding and carrying pay. We have no box clips, so the states
         are built from the oracle's geometry. The approach starts are ours: from the default
         start (2.5 m away, facing anywhere) walking to the box is paid only by `walk_to_box`,
-        and no policy learned it there (results/laptop/README.md, "Carry"); nearer starts
+        and no policy learned it there (results/laptop/NOTEBOOK.md, "Carry"); nearer starts
         reach the pick-up, whose rewards are larger, by walking a little.
         """
         n, dev = len(obj_rest), obj_rest.device

@@ -53,7 +53,7 @@ REACH = 0.5
 """feet_height pays while the pelvis is within the object's XY half diagonal plus this (m). Beside
 a small top (LH1's 0.6 m box) the feet reach its height without standing on it, and a puppet
 learns that first: it climbs such a box only after about twice the iterations a wide platform
-takes (results/laptop/README.md, probe C7)."""
+takes (results/laptop/NOTEBOOK.md, probe C7)."""
 _FEET = tuple(BODY_NAMES.index(b) for b in FEET)
 
 
@@ -136,7 +136,7 @@ class Climb(Skill):
         LH1's Climb begins, beside the box Carry has just put down. The single-skill task's
         default start (2.5 m off, facing it) never shows a policy that state, and one that
         climbed from there walked into the box from LH1's starts and pushed it away
-        (results/laptop/README.md, C8). The object rests where it rests, axis-aligned."""
+        (results/laptop/NOTEBOOK.md, C8). The object rests where it rests, axis-aligned."""
         n, dev = len(obj_rest), obj_rest.device
 
         def uniform(lo: float, hi: float) -> torch.Tensor:

@@ -9,7 +9,7 @@ toward a frozen teacher's on the steps of the teacher's skill,
 over the same rollout PPO learns from (the student's own states, so the teacher corrects
 where the student goes, as DAgger does); the teacher's mean is clipped to [-1, 1] as the env
 clips actions (beyond, every value acts the same). Why here: one network taught a new skill by PPO
-alone loses the skills it had (results/laptop/README.md: Climb learned at its own step took
+alone loses the skills it had (results/laptop/NOTEBOOK.md: Climb learned at its own step took
 Follow from 1.00 to 0.00), while a policy trained on one skill in place does that skill; a
 teacher per skill keeps each skill's behaviour as the target while the rewards of every
 skill are paid. A skill's teacher may be the very policy the student starts from (a frozen
