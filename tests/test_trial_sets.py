@@ -187,3 +187,13 @@ def test_the_dashboard_counts_a_run_evaluated_on_both_sets_once() -> None:
     n_col = skills.header.index("n")
     assert [str(r[n_col]) for r in skills.rows] == ["6 (1 seed)"]  # the test trials alone
     assert build_tables([("run", dev)])["skills"].table.rows[0][n_col] == "4 (1 seed)"
+
+
+def test_table_one_measures_zero_shot_climb_and_sit_where_every_trial_starts_at_them() -> None:
+    from detach.runs.sweep import cells, load_sweep
+
+    sweep = ROOT / "configs/sweeps/table1.yaml"
+    for preset in ("laptop", "laptop_paper"):
+        lh1 = [c for c in cells(load_sweep(sweep, preset=preset), sweep) if c.stage == "lh1"]
+        assert lh1 and all([t.stem for t in c.evals] == ["lh1", "climb", "sit"] for c in lh1)
+        assert all(c.trial_set == "test" for c in lh1)
