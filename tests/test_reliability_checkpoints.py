@@ -98,6 +98,13 @@ def test_a_checkpoint_that_would_run_code_is_refused(run: RunFolder, tmp_path: P
     assert cli.main(["--resume", str(run.path), "--no-eval"]) == 2
     assert "refused" in _one_error_line(capsys) and not marker.exists()
     assert run.status().state == "finished", "a refused resume leaves the run as it was"
+    # as a later stage's start: said as such, with how to get a file that loads (it said
+    # "cannot read X (UnpicklingError)")
+    assert cli.main(["train", "follow", "--model", "mlp", "--runs", str(tmp_path / "later"), "env.character=puppet",
+                     "sim.num_envs=4", "train.max_iterations=1", f"train.init_from={run.latest_checkpoint()}"]) == 2
+    said = _one_error_line(capsys)
+    assert "train.init_from" in said and "Python objects" in said and "--format init" in said, said
+    assert not marker.exists()
 
 
 def test_a_truncated_checkpoint_falls_back_and_the_log_keeps_each_iteration_once(

@@ -35,6 +35,13 @@ from detach.yaml_source import ConfigError
 REQUIRED_KEYS = ("actor_state_dict", "critic_state_dict", "iter")
 
 
+PICKLED_REFUSAL = ("refused: the file holds Python objects besides tensors, which are not loaded because "
+                   "loading them could run code (detach never writes such files); re-export the weights from "
+                   "the run that made it with `detach-run export RUN --format init` (or save only tensors: "
+                   "actor_state_dict, critic_state_dict, iter)")
+"""Why a checkpoint that needs unpickling is refused, and how to get one that does not."""
+
+
 class CheckpointError(ConfigError):
     """A checkpoint that cannot be used, in one line naming the file and why."""
 
@@ -53,9 +60,7 @@ def read_checkpoint(path: Path, map_location: str | torch.device | None = "cpu",
         raise CheckpointError("checkpoint not found", str(path)) from None
     except pickle.UnpicklingError as exc:
         if "weights only" in str(exc).lower():
-            raise CheckpointError("refused: the checkpoint holds Python objects besides weights, and "
-                                  "loading them could run code (detach never writes such files)",
-                                  str(path)) from None
+            raise CheckpointError(PICKLED_REFUSAL, str(path)) from None
         raise UnreadableCheckpoint(f"unreadable checkpoint (corrupt: {first_line(exc)})", str(path)) from None
     except (RuntimeError, EOFError, KeyError, ValueError, OSError, IndexError, TypeError) as exc:
         raise UnreadableCheckpoint(f"unreadable checkpoint, truncated or corrupt ({type(exc).__name__}: "

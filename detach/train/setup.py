@@ -26,7 +26,7 @@ from detach.motion import default_motion_lib
 from detach.run_contract import CONFIG_FILE
 from detach.skills import canonical_name
 from detach.train.action_bounds import action_bound_loss
-from detach.train.checkpoints import find_init_checkpoint
+from detach.train.checkpoints import CheckpointError, find_init_checkpoint, read_checkpoint
 from detach.train.distributed import local_device, rank
 from detach.train.motion_bridge import amp_part_indices, amp_reference_sampler, reset_reference_sampler
 from detach.train.runner import DetachRunner, MetricsSink
@@ -200,9 +200,9 @@ def load_initial_weights(runner: DetachRunner, cfg: RunConfig) -> str:
         except ConfigError:
             source_model = f"? (unreadable {CONFIG_FILE})"
     try:
-        state = torch.load(checkpoint, map_location=runner.device, weights_only=True)
-    except Exception as exc:  # noqa: BLE001 - a broken file is a user error here
-        raise ConfigError(f"train.init_from: cannot read {checkpoint} ({type(exc).__name__})") from None
+        state = read_checkpoint(Path(checkpoint), runner.device)
+    except CheckpointError as exc:
+        raise ConfigError(f"train.init_from: {exc}") from None
     infos = state.get("infos") if isinstance(state, dict) else None
     if run is None and isinstance(infos, dict) and "model" in infos:  # a shipped file (export --format init)
         source_model = f"{infos['model']} ({infos.get('model_kind', '?')})"
