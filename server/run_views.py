@@ -12,6 +12,7 @@ from typing import Any, Sequence
 
 import yaml
 
+from detach.runs.files import parse_yaml
 from server.run_index import RunInfo
 
 GROUP_BY = ("nothing", "task", "model", "seed", "sweep cell", "state")
@@ -167,9 +168,8 @@ def flatten(data: Any, prefix: str = "") -> dict[str, Any]:
 def config_diff(a_text: str, b_text: str) -> list[tuple[str, Any, Any]]:
     """(key, value in a, value in b) of every dotted key whose values differ; a key missing
     on one side has the value None there."""
-    loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
-    a = flatten(yaml.load(a_text, Loader=loader) or {})
-    b = flatten(yaml.load(b_text, Loader=loader) or {})
+    a = flatten(parse_yaml(a_text, "A's config.yaml") or {})  # the CLI's value limit: no alias bomb
+    b = flatten(parse_yaml(b_text, "B's config.yaml") or {})
     return [(k, a.get(k), b.get(k)) for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
 
 

@@ -24,8 +24,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Literal
 
-from detach.config import dump, load_run_config
+from detach.config import ConfigError, dump, load_run_config
 from detach.config_schema import RunConfig
+from detach.runs import files as run_files
 from detach.run_contract import (
     CHECKPOINT_DIR, CONFIG_FILE, EVAL_FILE, LIVE_STATES, LOG_FILE, RUN_MARKERS, RUN_STATES, SELECTION_FILE,
     STATUS_FILE, STDOUT_FILE, EvalResult, Status, atomic_writer, is_temp_file,
@@ -62,20 +63,10 @@ def atomic_write_json(path: Path, data: Any) -> None:
 
 
 def read_json(path: Path) -> Any:
-    """A small JSON file of the run folder (OSError if unreadable, ValueError if malformed,
-    too large or too deeply nested)."""
-    with open(path, "rb") as f:
-        data = f.read(MAX_JSON_BYTES + 1)
-    if len(data) > MAX_JSON_BYTES:
-        raise ValueError(f"{path.name}: larger than {MAX_JSON_BYTES} bytes")
-    try:
-        return json.loads(data)
-    except RecursionError:
-        raise ValueError(f"{path.name}: nested too deeply") from None
-    except UnicodeDecodeError:  # json.loads guesses UTF-8/16/32 from the bytes; say what was expected
-        raise ValueError(f"{path.name}: expected UTF-8 JSON, found undecodable bytes") from None
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path.name}: expected JSON, {exc}") from None
+    """A small JSON file of the run folder (OSError if missing, ValueError if malformed, too
+    large, nested too deeply, not a regular file or a link out of its folder:
+    `detach.runs.files`)."""
+    return run_files.read_json(path.parent, path.name, MAX_JSON_BYTES)
 
 
 def _overwrite_in_place(path: Path, text: str) -> None:
@@ -209,6 +200,14 @@ class RunFolder:
             self.path.rmdir()
 
     def config(self) -> RunConfig:
+        """config.yaml, read only if it is a regular file of this folder within its cap
+        (ConfigError, one line, otherwise: a link to /etc/passwd must not be echoed)."""
+        try:
+            run_files.check_run_file(self.path, CONFIG_FILE)
+        except run_files.RunFileError as exc:
+            raise ConfigError(str(exc)) from None
+        except OSError:
+            pass  # missing or unreadable: the loader says so
         return load_run_config(self.config_path)
 
     def status(self) -> Status:

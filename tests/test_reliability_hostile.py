@@ -1,0 +1,145 @@
+"""Hostile run folders (links out of the folder, FIFOs, huge and exploding files, copies) and a
+hostile browser (a backtracking filter, names that are HTML): every reader stays bounded, shows
+no file from outside the run folder and never hangs (docs/RELIABILITY.md, issue 62)."""
+
+from __future__ import annotations
+
+import json
+import os
+import threading
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import pytest
+
+from detach import cli
+from detach.config import resolve
+from detach.runs.folder import RunFolder
+from server.run_index import RunIndex
+from tests.test_reliability_tables import _eval
+from tests.test_runner_cli import FOLLOW
+
+SECRET = "TOPSECRET root:x:0:0:root:/root:/bin/bash"
+
+
+def _run(parent: Path, rate: float = 0.5) -> RunFolder:
+    run = RunFolder.create(parent, resolve(FOLLOW, "mlp"))
+    run.set_state("finished")
+    run.eval_path.write_text(json.dumps(_eval(rate)))
+    run.stdout_path.write_text("training...\ndone\n")
+    return run
+
+
+def _within(seconds: float, fn: Callable[..., Any], *args: Any) -> Any:
+    """fn(*args), failing the test (not hanging it) when it does not return in time."""
+    out: dict[str, Any] = {}
+
+    def call() -> None:
+        try:
+            out["value"] = fn(*args)
+        except BaseException as exc:  # noqa: BLE001 - re-raised in the test's thread
+            out["error"] = exc
+
+    thread = threading.Thread(target=call, daemon=True)
+    thread.start()
+    thread.join(seconds)
+    assert not thread.is_alive(), f"{getattr(fn, '__name__', fn)} still blocked after {seconds} s"
+    if "error" in out:
+        raise out["error"]
+    return out["value"]
+
+
+def _shown(fn: Callable[[], str]) -> str:
+    """What a reader gives the page: its text, or the one line of its refusal."""
+    try:
+        return fn()
+    except (OSError, ValueError) as exc:
+        return str(exc)
+
+
+def test_a_file_linked_out_of_the_run_folder_is_never_shown(tmp_path: Path,
+                                                            capsys: pytest.CaptureFixture[str]) -> None:
+    secret = tmp_path / "secret.txt"
+    secret.write_text(SECRET + "\n")
+    runs = tmp_path / "runs"
+    good, run = _run(runs), _run(runs)
+    run.config_path.unlink()
+    run.config_path.symlink_to(secret)
+    run.stdout_path.unlink()
+    run.stdout_path.symlink_to(secret)
+    (good.path / "inner.log").write_text("inside\n")
+    good.stdout_path.unlink()
+    good.stdout_path.symlink_to("inner.log")  # a link inside the run folder is fine
+
+    assert cli.main(["list", str(runs)]) == 0
+    out = capsys.readouterr().out
+    assert "TOPSECRET" not in out
+    (note,) = [line for line in out.splitlines() if line.startswith(f"  {run.path.name}:")]
+    assert "config.yaml" in note and "leaves the run folder" in note
+    assert cli.main(["--resume", str(run.path)]) == 2
+    err = capsys.readouterr().err
+    assert "TOPSECRET" not in err and len(err.strip().splitlines()) == 1
+
+    index = RunIndex(runs)
+    infos = {i.run_id: i for i in index.refresh()}
+    assert any("leaves the run folder" in p for p in infos[run.path.name].problems)
+    reader = index.reader(run.path.name)
+    assert reader is not None
+    for shown in (_shown(reader.config_text), _shown(reader.stdout_tail)):
+        assert "TOPSECRET" not in shown and "leaves the run folder" in shown
+    assert index.reader(good.path.name).stdout_tail() == "inside"
+
+
+def _unblock(fifo: Path) -> None:
+    """Open the FIFO for writing once, so that a reader blocked in open() (the bug) returns."""
+    try:
+        os.close(os.open(fifo, os.O_WRONLY | os.O_NONBLOCK))
+    except OSError:
+        pass
+
+
+def test_a_fifo_in_a_run_folder_hangs_no_reader(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    good, run = _run(tmp_path, 0.25), _run(tmp_path)
+    run.eval_path.unlink()
+    os.mkfifo(run.eval_path)
+    try:
+        assert _within(20, cli.main, ["list", str(tmp_path)]) == 0
+        out = capsys.readouterr().out
+        assert f"  {run.path.name}: eval.json ignored:" in out and "named pipe" in out
+        assert _within(20, cli.main, ["table", str(tmp_path), "--kind", "skills", "--task", "follow",
+                                      "--out", str(tmp_path / "tables")]) == 0
+        err = capsys.readouterr().err
+        assert f"skipped {run.eval_path}" in err and "named pipe" in err
+        infos = {i.run_id: i for i in _within(20, RunIndex(tmp_path).refresh)}
+        assert any("named pipe" in p for p in infos[run.path.name].problems)
+        assert infos[good.path.name].lh_sr == 0.25
+    finally:
+        for _ in range(3):
+            _unblock(run.eval_path)
+
+
+def _alias_bomb(levels: int = 7) -> str:
+    """A few hundred bytes of YAML that expand to 9**levels values."""
+    anchors = ['&a0 ["x","x","x","x","x","x","x","x","x"]']
+    anchors += [f"&a{i} [" + ",".join([f"*a{i - 1}"] * 9) + "]" for i in range(1, levels)]
+    return "task_name: [" + ", ".join(anchors) + "]\nmodel_name: mlp\nseed: 0\n"
+
+
+def test_the_dashboard_refuses_oversized_endless_and_exploding_files(tmp_path: Path) -> None:
+    big, endless, bomb = _run(tmp_path), _run(tmp_path), _run(tmp_path)
+    with open(big.eval_path, "r+b") as f:
+        f.truncate(200 * 1024 * 1024)  # sparse: 200 MB on paper, nothing on the disk
+    endless_eval = endless.path / "eval_lh2.json"
+    endless_eval.symlink_to("/dev/zero")
+    bomb.config_path.write_text(_alias_bomb())
+    assert len(_alias_bomb()) < 600
+
+    start = time.monotonic()
+    infos = {i.run_id: i for i in _within(30, RunIndex(tmp_path).refresh)}
+    assert time.monotonic() - start < 10
+    assert any("eval.json" in p and "larger than 16 MB" in p for p in infos[big.path.name].problems)
+    assert any("eval_lh2.json" in p and "refused" in p for p in infos[endless.path.name].problems)
+    problems = infos[bomb.path.name].problems
+    assert any("config.yaml" in p and "200000 values" in p for p in problems), problems
+    assert len(infos[bomb.path.name].task) < 100
