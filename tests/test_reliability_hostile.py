@@ -8,6 +8,7 @@ import json
 import os
 import threading
 import time
+from html.parser import HTMLParser
 from pathlib import Path
 from typing import Any, Callable
 
@@ -143,3 +144,61 @@ def test_the_dashboard_refuses_oversized_endless_and_exploding_files(tmp_path: P
     problems = infos[bomb.path.name].problems
     assert any("config.yaml" in p and "200000 values" in p for p in problems), problems
     assert len(infos[bomb.path.name].task) < 100
+
+
+@pytest.mark.parametrize("pattern", [".*.*.*.*.*.*.*.*Z", "(.|.)*Z", "(a+)+Z", "(a|aa)*Z", "(x*)*(y*)*Z"])
+def test_the_metric_filter_takes_linear_time_whatever_the_pattern(pattern: str) -> None:
+    from server.curves import matching
+
+    keys = [f"Loss/{'a' * 16}{i:02d}" for i in range(20)]  # a backtracking engine: seconds already
+    start = time.monotonic()
+    assert matching(keys, pattern) == []
+    assert time.monotonic() - start < 0.5, "a backtracking pattern must not stall the server"
+    assert matching(["Loss/value", "Loss/surrogate", "Train/lr"], "loss/(value|surr)") == [
+        "Loss/value", "Loss/surrogate"], "regular expressions still work"
+
+
+ALLOWED_TAGS = {"p", "div", "table", "thead", "tbody", "tr", "th", "td", "strong", "em", "code",
+                "ul", "li", "span", "br", "pre"}
+
+
+class _Tags(HTMLParser):
+    def __init__(self) -> None:
+        super().__init__()
+        self.tags: list[tuple[str, list[tuple[str, str | None]]]] = []
+
+    def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
+        self.tags.append((tag, attrs))
+
+
+def _rendered_tags(markdown: str) -> list[tuple[str, list[tuple[str, str | None]]]]:
+    """The HTML tags a browser gets from this Markdown (raw HTML passes, as in viser)."""
+    from markdown_it import MarkdownIt
+
+    parser = _Tags()
+    parser.feed(MarkdownIt("commonmark", {"html": True}).enable("table").render(markdown))
+    return parser.tags
+
+
+HOSTILE = ["<img src=x onerror=alert(1)>", "<script>alert(2)</script>", "[click](javascript:alert(3))",
+           "![](http://evil.example/t.png)", "a`<b>`b|c\n<iframe src=//evil>", "<http://evil.example>"]
+
+
+def test_text_from_run_folders_reaches_the_page_as_text_not_html(tmp_path: Path) -> None:
+    from server.curves import legend_markdown
+    from server.run_index import RunInfo
+    from server.run_views import diff_markdown, run_labels, runs_table, status_markdown
+
+    infos = [RunInfo(run_id=f"2026-{i}-{name}", path=tmp_path, task=name, model=name, seed=i,
+                     cell=f"{name}/x/{name}/s0", state="failed", error=name, problems=(name,) if i % 2 else ())
+             for i, name in enumerate(HOSTILE)]
+    labels = run_labels(infos)
+    pages = [runs_table(infos, [i.run_id for i in infos], by)
+             for by in ("nothing", "task", "model", "sweep cell", "state")]
+    pages += [status_markdown(i) for i in infos]
+    pages += [diff_markdown(HOSTILE[0], HOSTILE[1], [(name, name, {"k": name}) for name in HOSTILE]),
+              legend_markdown(list(labels.values()))]
+    for page in pages:
+        for tag, attrs in _rendered_tags(page):
+            assert tag in ALLOWED_TAGS, f"<{tag}> reached the page from:\n{page}"
+            assert not any(k.startswith("on") or k in ("src", "href") for k, _v in attrs), (tag, attrs)
