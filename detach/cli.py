@@ -516,6 +516,7 @@ def _train(args: argparse.Namespace) -> int:
 
     cfg = complete_run_config(resolve(task, args.model, args.overrides, seed=args.seed, device=args.device,
                                       presets=args.preset))
+    cfg = _with_trials(cfg, args.trials)  # recorded: a resume or re-evaluation repeats them
     if args.dry_run:
         sys.stdout.write(dump(cfg))
         print(f"# run folder: {args.runs / run_folder_name(cfg)}")
@@ -541,7 +542,7 @@ def _train(args: argparse.Namespace) -> int:
                           f"expected a writable folder") from None
     print(f"run folder: {run.path}")
     code = run_job(run, lambda r: train_and_evaluate(
-        r, resume=False, eval_tasks=eval_on, trials=args.trials, evaluate=not args.no_eval))
+        r, resume=False, eval_tasks=eval_on, trials=None, evaluate=not args.no_eval))
     print(f"run folder: {run.path}")
     if code == 0 and not args.cell:
         print(f"next: detach-dashboard --runs {args.runs}  (curves, 3D replay of the evaluation, tables; "
@@ -549,21 +550,31 @@ def _train(args: argparse.Namespace) -> int:
     return code
 
 
+def _with_trials(cfg: RunConfig, trials: int | None) -> RunConfig:
+    """`--trials N` as `eval.trials` of the config (None: the config's own)."""
+    import dataclasses
+
+    if trials is None:
+        return cfg
+    return dataclasses.replace(cfg, eval=dataclasses.replace(cfg.eval, trials=trials))
+
+
 def _resume(args: argparse.Namespace) -> int:
     run = RunFolder(args.resume)
     if not run.config_path.exists():
         raise ConfigError("not a run folder (no config.yaml)", str(args.resume))
     if run.latest_checkpoint() is None:
-        raise ConfigError("run has no checkpoint to resume from", str(args.resume))
+        return _restart(run, args)
     _refuse_if_alive(run)
     cfg = run.config()  # validates the stored config as a user error, not a traceback
     checkpoint = _resume_checkpoint(run, cfg, rename=not args.dry_run)
     new = _extended_config(run, args.overrides, checkpoint) if args.overrides else cfg
+    new = _with_trials(new, args.trials)
     if args.dry_run:
         sys.stdout.write(dump(new))
         print(f"# would resume {run.path} from {checkpoint.name}")
         return 0
-    if args.overrides:
+    if new != cfg:
         from detach.runs.folder import atomic_write_text
 
         atomic_write_text(run.config_path, dump(new))
@@ -578,8 +589,44 @@ def _resume(args: argparse.Namespace) -> int:
         print(warning, flush=True)
     print(f"resuming {run.path} from {checkpoint.name}")
     return run_job(run, lambda r: train_and_evaluate(
-        r, resume=True, eval_tasks=eval_on, trials=args.trials, evaluate=not args.no_eval,
+        r, resume=True, eval_tasks=eval_on, trials=None, evaluate=not args.no_eval,
         device=args.device, checkpoint=checkpoint))
+
+
+def _restart(run: RunFolder, args: argparse.Namespace) -> int:
+    """A run killed before its first checkpoint: nothing to resume from, so it trains again
+    from iteration 0 with its recorded config (a new log.mcap replaces the old one)."""
+    from detach.config import load_run_config
+
+    try:
+        run.status()
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"run has no checkpoint, and its status.json is unreadable ({exc}); "
+                          f"expected a run folder that was started", str(run.path)) from None
+    _refuse_if_alive(run)
+    cfg = run.config()
+    for text in args.overrides:
+        key = text.split("=", 1)[0]
+        if not key.startswith(RESUME_OVERRIDABLE):
+            raise ConfigError(f"cannot change '{key}' when resuming; only "
+                              f"{', '.join(k + '*' if k.endswith('.') else k for k in RESUME_OVERRIDABLE)} may change")
+    new = _with_trials(load_run_config(run.config_path, args.overrides) if args.overrides else cfg, args.trials)
+    if args.dry_run:
+        sys.stdout.write(dump(new))
+        print(f"# would restart {run.path} from iteration 0 (it has no checkpoint yet)")
+        return 0
+    if new != cfg:
+        from detach.runs.folder import atomic_write_text
+
+        atomic_write_text(run.config_path, dump(new))
+    from detach.runs.job import run_job
+    from detach.runs.session import train_and_evaluate
+
+    eval_on = [task_path(extra, "--eval-on") for extra in args.eval_on]
+    print(f"{run.path} has no checkpoint yet: restarting it from iteration 0 with its recorded config",
+          flush=True)
+    return run_job(run, lambda r: train_and_evaluate(
+        r, resume=False, eval_tasks=eval_on, trials=None, evaluate=not args.no_eval, device=args.device))
 
 
 def _resume_checkpoint(run: RunFolder, cfg: RunConfig, rename: bool = True) -> Path:

@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
+import subprocess
+import sys
 import threading
 import time
 from html.parser import HTMLParser
@@ -16,10 +19,11 @@ import pytest
 
 from detach import cli
 from detach.config import resolve
-from detach.runs.folder import RunFolder
+from detach.runs.folder import RunFolder, find_runs
+from detach.runs.tables_cli import collect_evals
 from server.run_index import RunIndex
 from tests.test_reliability_tables import _eval
-from tests.test_runner_cli import FOLLOW
+from tests.test_runner_cli import FOLLOW, TINY
 
 SECRET = "TOPSECRET root:x:0:0:root:/root:/bin/bash"
 
@@ -202,3 +206,65 @@ def test_text_from_run_folders_reaches_the_page_as_text_not_html(tmp_path: Path)
         for tag, attrs in _rendered_tags(page):
             assert tag in ALLOWED_TAGS, f"<{tag}> reached the page from:\n{page}"
             assert not any(k.startswith("on") or k in ("src", "href") for k, _v in attrs), (tag, attrs)
+
+
+def _dead_pid() -> int:
+    proc = subprocess.Popen([sys.executable, "-c", "pass"])
+    proc.wait()
+    return proc.pid
+
+
+def test_a_run_killed_before_its_first_checkpoint_restarts_from_iteration_0(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from detach.train.checks import complete_run_config
+
+    run = RunFolder.create(tmp_path, complete_run_config(resolve(FOLLOW, "mlp", [*TINY, "train.max_iterations=1"])))
+    run.set_state("running", iteration=0)
+    status = json.loads(run.status_path.read_text())
+    run.status_path.write_text(json.dumps({**status, "pid": _dead_pid()}))
+    orphan = run.checkpoints / "amp_replay_7.pt"  # its model_7.pt was never written (killed between)
+    orphan.write_bytes(b"half a replay buffer")
+    assert cli.main(["list", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "no checkpoint yet" in out and f"detach-run --resume {run.path}" in out
+    assert cli.main(["--resume", str(run.path), "--no-eval"]) == 0, capsys.readouterr().err
+    assert "restarting it from iteration 0" in capsys.readouterr().out
+    assert run.status().state == "finished" and run.latest_checkpoint() is not None
+    assert not orphan.exists()
+    for sidecar in run.checkpoints.glob("amp_replay_*.pt"):
+        assert (run.checkpoints / sidecar.name.replace("amp_replay_", "model_")).exists(), sidecar
+
+
+def test_trials_are_recorded_so_that_resume_and_re_evaluation_repeat_them(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main(["train", FOLLOW, "--model", "mlp", "--out", str(tmp_path), "--trials", "2", "--no-eval",
+                     "train.max_iterations=1", *TINY]) == 0
+    (run,) = find_runs(tmp_path)
+    assert run.config().eval.trials == 2, "config.yaml records --trials"
+    assert cli.main(["resume", str(run.path)]) == 0, capsys.readouterr().err  # killed in its evaluation
+    assert json.loads(run.eval_path.read_text())["trials"] == 2
+    old = RunFolder(tmp_path / "old")  # a run folder of an earlier version: no eval.trials
+    shutil.copytree(run.path, old.path)
+    text = old.config_path.read_text()
+    assert "eval: {trials: 2, " in text
+    old.config_path.write_text(text.replace("eval: {trials: 2, ", "eval: {", 1))
+    assert old.config().eval.trials == 100, "a config without eval.trials means the old default"
+
+
+def test_a_copied_run_folder_counts_once_with_a_warning(tmp_path: Path,
+                                                         capsys: pytest.CaptureFixture[str]) -> None:
+    run, other = _run(tmp_path, 0.5), _run(tmp_path, 0.25)
+    shutil.copytree(run.path, tmp_path / (run.path.name + ".bak"))
+    evals = collect_evals(find_runs(tmp_path))
+    assert sorted(e.lh_success.rate for e in evals) == [0.25, 0.5]
+    assert sum(e.trials for e in evals) == 20, "n does not double"
+    err = capsys.readouterr().err
+    assert "copy" in err and run.path.name in err
+    assert cli.main(["list", str(tmp_path)]) == 0
+    assert f"copy of {run.path.name}" in capsys.readouterr().out
+    for folder in (run, other):  # folders of earlier versions have no run id: each is its own run
+        status = json.loads(folder.status_path.read_text())
+        status.pop("run_id", None)
+        folder.status_path.write_text(json.dumps(status))
+    shutil.rmtree(tmp_path / (run.path.name + ".bak"))
+    assert len(collect_evals(find_runs(tmp_path))) == 2

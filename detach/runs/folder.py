@@ -29,7 +29,8 @@ from detach.config_schema import RunConfig
 from detach.runs import files as run_files
 from detach.run_contract import (
     CHECKPOINT_DIR, CONFIG_FILE, EVAL_FILE, LIVE_STATES, LOG_FILE, RUN_MARKERS, RUN_STATES, SELECTION_FILE,
-    STATUS_FILE, STDOUT_FILE, EvalResult, Status, atomic_writer, is_temp_file,
+    REPLAY_PREFIX, STATUS_FILE, STDOUT_FILE, EvalResult, Status, atomic_writer, checkpoint_file, is_temp_file,
+    replay_iteration,
 )
 
 RunState = Literal["queued", "running", "finished", "failed", "interrupted"]
@@ -295,8 +296,16 @@ class RunFolder:
 
     def remove_stale_temp_files(self) -> list[Path]:
         """Delete temporary files that writers killed mid-write left behind (their pid, in the
-        name, is dead); returns what was removed. Call when taking ownership of the run."""
+        name, is dead) and AMP replay sidecars whose checkpoint was never written (a kill
+        between the two files); returns what was removed. Call when taking ownership of the run."""
         removed = []
+        if self.checkpoints.is_dir():
+            for path in self.checkpoints.glob(f"{REPLAY_PREFIX}*.pt"):
+                iteration = replay_iteration(path.name)
+                if iteration is not None and not (self.checkpoints / checkpoint_file(iteration)).exists():
+                    with contextlib.suppress(OSError):
+                        path.unlink()
+                        removed.append(path)
         for folder in (self.path, self.checkpoints):
             if not folder.is_dir():
                 continue
