@@ -17,6 +17,7 @@ import errno
 import json
 import math
 import os
+import secrets
 import socket
 import threading
 import time
@@ -187,7 +188,7 @@ class RunFolder:
         try:
             run.checkpoints.mkdir()
             atomic_write_text(run.config_path, dump(cfg))
-            run.set_state("queued", iteration=0)
+            run.set_state("queued", iteration=0, run_id=secrets.token_hex(8))
         except BaseException:
             run._remove_new_folder()
             raise
@@ -214,6 +215,14 @@ class RunFolder:
     def status(self) -> Status:
         """status.json (OSError if missing, ValueError if malformed)."""
         return Status.from_json(read_json(self.status_path))
+
+    def run_id(self) -> str:
+        """The run's id from status.json, which a copy of the folder shares; the folder name for
+        a folder of an earlier version (or an unreadable status.json)."""
+        try:
+            return self.status().run_id or self.path.name
+        except (OSError, ValueError):
+            return self.path.name
 
     def set_state(self, state: RunState, **fields: Any) -> Status:
         """Update status.json (state, pid, host, iteration, started, updated, error, cell)."""

@@ -24,7 +24,7 @@ def run_row(run: RunFolder) -> dict[str, Any]:
         row.update(state="unreadable", error=f"{exc.__class__.__name__}: {exc}")
         return row
     row.update(task=cfg.task_name, model=cfg.model_name, seed=cfg.seed,
-               state=status.state, iteration=status.iteration)
+               state=status.state, iteration=status.iteration, run_id=status.run_id)
     if status.state in LIVE_STATES and status.pid and not owner_alive(status):
         where = f" on {status.host}" if status.host and status.host != this_host() else ""
         row["state"] = "dead"
@@ -74,5 +74,11 @@ def print_runs(parent: Path) -> int:
     if not rows:
         print(f"no runs in {parent}/")
         return 0
+    first: dict[str, str] = {}
+    for row in rows:  # a copied folder shares its run id: tables count it once
+        if row.get("run_id"):
+            original = first.setdefault(row["run_id"], row["run"])
+            if original != row["run"]:
+                row.setdefault("notes", []).append(f"copy of {original} (same run id); tables count it once")
     print(format_runs(rows))
     return 0
