@@ -133,7 +133,8 @@ def _add_after_training(parser: argparse.ArgumentParser) -> None:
 
 def _add_trials(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--trials", type=_int_in(1), default=None,
-                        help="evaluation episodes (default: eval.trials of the config, 100)")
+                        help="evaluation episodes (default: eval.trials of the config, 100); train and "
+                             "resume record it in config.yaml as eval.trials")
 
 
 def _add_eval_task(parser: argparse.ArgumentParser, what: str) -> None:
@@ -238,8 +239,10 @@ def build_eval_parser() -> argparse.ArgumentParser:
 
 
 def build_resume_parser() -> argparse.ArgumentParser:
-    parser = _subparser("resume", "Continue an interrupted or failed run from its newest readable checkpoint; "
-                                  "overrides may only train longer (train.max_iterations, ...).")
+    parser = _subparser("resume", "Continue an interrupted or failed run from its newest readable checkpoint "
+                                  "(a run killed before its first checkpoint restarts from iteration 0 with "
+                                  "its recorded config); overrides may only train longer "
+                                  "(train.max_iterations, ...).")
     parser.add_argument("resume", type=Path, metavar="RUN_DIR")
     _add_overrides(parser)
     _add_device(parser)
