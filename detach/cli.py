@@ -93,7 +93,7 @@ COMMANDS = ("train", "eval", "resume", "sweep", "play", "export", "list", "table
 DEFAULTS = dict(task=None, overrides=[], preset=[], model="detach", seed=0, device="cpu",
                 runs=Path("runs"), dry_run=False, resume=None, eval=None, sweep=None, eval_task=None,
                 eval_on=[], trials=None, no_eval=False, quick=False, jobs=1, models=None, seeds=None,
-                launcher="local", cell=None, video=None, replace=False, test_trials=None)
+                launcher="local", cell=None, video=None, replace=False, test_trials=None, policy_seed=None)
 """Every option a command handler reads; a subcommand's parser sets those it has."""
 
 
@@ -139,7 +139,8 @@ def _add_after_training(parser: argparse.ArgumentParser) -> None:
 
 def _add_trials(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--trials", type=_int_in(1), default=None,
-                        help="evaluation episodes (default: eval.trials of the config, 100)")
+                        help="evaluation episodes (default: eval.trials of the config, 100); train and "
+                             "resume record it in config.yaml as eval.trials")
 
 
 def _add_test_trials(parser: argparse.ArgumentParser) -> None:
@@ -246,7 +247,7 @@ def build_eval_parser() -> argparse.ArgumentParser:
                                 "<file>.eval_<task>_s<seed>.json beside it.")
     parser.add_argument("eval", type=Path, metavar="RUN_DIR|CKPT|POLICY.policy.pt")
     _add_eval_task(parser, "evaluate")
-    parser.add_argument("--seed", type=_int_in(0, MAX_SEED), default=None,
+    parser.add_argument("--seed", dest="policy_seed", type=_int_in(0, MAX_SEED), default=None,
                         help="with an exported policy: the trials of this run seed (default: the run's)")
     _add_trials(parser)
     _add_test_trials(parser)
@@ -258,8 +259,10 @@ def build_eval_parser() -> argparse.ArgumentParser:
 
 
 def build_resume_parser() -> argparse.ArgumentParser:
-    parser = _subparser("resume", "Continue an interrupted or failed run from its newest readable checkpoint; "
-                                  "overrides may only train longer (train.max_iterations, ...).")
+    parser = _subparser("resume", "Continue an interrupted or failed run from its newest readable checkpoint "
+                                  "(a run killed before its first checkpoint restarts from iteration 0 with "
+                                  "its recorded config); overrides may only train longer "
+                                  "(train.max_iterations, ...).")
     parser.add_argument("resume", type=Path, metavar="RUN_DIR")
     _add_overrides(parser)
     _add_device(parser)
@@ -544,6 +547,7 @@ def _train(args: argparse.Namespace) -> int:
 
     cfg = complete_run_config(resolve(task, args.model, args.overrides, seed=args.seed, device=args.device,
                                       presets=args.preset))
+    cfg = _with_trials(cfg, args.trials)  # recorded: a resume or re-evaluation repeats them
     if args.dry_run:
         sys.stdout.write(dump(cfg))
         print(f"# run folder: {args.runs / run_folder_name(cfg)}")
@@ -569,7 +573,7 @@ def _train(args: argparse.Namespace) -> int:
                           f"expected a writable folder") from None
     print(f"run folder: {run.path}")
     code = run_job(run, lambda r: train_and_evaluate(
-        r, resume=False, eval_tasks=eval_on, trials=args.trials, evaluate=not args.no_eval,
+        r, resume=False, eval_tasks=eval_on, trials=None, evaluate=not args.no_eval,
         test_offset=args.test_trials))
     print(f"run folder: {run.path}")
     if code == 0 and not args.cell:
@@ -578,23 +582,33 @@ def _train(args: argparse.Namespace) -> int:
     return code
 
 
+def _with_trials(cfg: RunConfig, trials: int | None) -> RunConfig:
+    """`--trials N` as `eval.trials` of the config (None: the config's own)."""
+    import dataclasses
+
+    if trials is None:
+        return cfg
+    return dataclasses.replace(cfg, eval=dataclasses.replace(cfg.eval, trials=trials))
+
+
 def _resume(args: argparse.Namespace) -> int:
     run = RunFolder(args.resume)
     if not run.config_path.exists():
         raise ConfigError("not a run folder (no config.yaml)", str(args.resume))
     if run.latest_checkpoint() is None:
-        raise ConfigError("run has no checkpoint to resume from", str(args.resume))
+        return _restart(run, args)
     _refuse_if_alive(run)
     if args.test_trials is not None and run.status().cell is None:
         raise ConfigError(TEST_TRIALS_CELLS_ONLY, str(run.path))
     cfg = run.config()  # validates the stored config as a user error, not a traceback
     checkpoint = _resume_checkpoint(run, cfg, rename=not args.dry_run)
     new = _extended_config(run, args.overrides, checkpoint) if args.overrides else cfg
+    new = _with_trials(new, args.trials)
     if args.dry_run:
         sys.stdout.write(dump(new))
         print(f"# would resume {run.path} from {checkpoint.name}")
         return 0
-    if args.overrides:
+    if new != cfg:
         from detach.runs.folder import atomic_write_text
 
         atomic_write_text(run.config_path, dump(new))
@@ -609,8 +623,47 @@ def _resume(args: argparse.Namespace) -> int:
         print(warning, flush=True)
     print(f"resuming {run.path} from {checkpoint.name}")
     return run_job(run, lambda r: train_and_evaluate(
-        r, resume=True, eval_tasks=eval_on, trials=args.trials, evaluate=not args.no_eval,
+        r, resume=True, eval_tasks=eval_on, trials=None, evaluate=not args.no_eval,
         device=args.device, checkpoint=checkpoint, test_offset=args.test_trials))
+
+
+def _restart(run: RunFolder, args: argparse.Namespace) -> int:
+    """A run killed before its first checkpoint: nothing to resume from, so it trains again
+    from iteration 0 with its recorded config (a new log.mcap replaces the old one)."""
+    from detach.config import load_run_config
+
+    try:
+        run.status()
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"run has no checkpoint, and its status.json is unreadable ({exc}); "
+                          f"expected a run folder that was started", str(run.path)) from None
+    _refuse_if_alive(run)
+    if args.test_trials is not None and run.status().cell is None:
+        raise ConfigError(TEST_TRIALS_CELLS_ONLY, str(run.path))
+    cfg = run.config()
+    for text in args.overrides:
+        key = text.split("=", 1)[0]
+        if not key.startswith(RESUME_OVERRIDABLE):
+            raise ConfigError(f"cannot change '{key}' when resuming; only "
+                              f"{', '.join(k + '*' if k.endswith('.') else k for k in RESUME_OVERRIDABLE)} may change")
+    new = _with_trials(load_run_config(run.config_path, args.overrides) if args.overrides else cfg, args.trials)
+    if args.dry_run:
+        sys.stdout.write(dump(new))
+        print(f"# would restart {run.path} from iteration 0 (it has no checkpoint yet)")
+        return 0
+    if new != cfg:
+        from detach.runs.folder import atomic_write_text
+
+        atomic_write_text(run.config_path, dump(new))
+    from detach.runs.job import run_job
+    from detach.runs.session import train_and_evaluate
+
+    eval_on = [task_path(extra, "--eval-on") for extra in args.eval_on]
+    print(f"{run.path} has no checkpoint yet: restarting it from iteration 0 with its recorded config",
+          flush=True)
+    return run_job(run, lambda r: train_and_evaluate(
+        r, resume=False, eval_tasks=eval_on, trials=None, evaluate=not args.no_eval, device=args.device,
+        test_offset=args.test_trials))
 
 
 def _resume_checkpoint(run: RunFolder, cfg: RunConfig, rename: bool = True) -> Path:
@@ -687,7 +740,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     eval_task = task_path(args.eval_task, "--task") if args.eval_task is not None else None
     if Path(args.eval).name.endswith(EXPORT_FORMATS["policy"]):
         return _evaluate_policy_file(args, eval_task)
-    if getattr(args, "seed", None) not in (None, 0) and args.command == "eval":
+    if args.policy_seed is not None:
         raise ConfigError("--seed: with an exported policy only (a run is evaluated on its own seed's trials)")
     run, checkpoint = _run_and_checkpoint(args.eval)
     if args.video is not None:
@@ -730,7 +783,7 @@ def _evaluate_policy_file(args: argparse.Namespace, eval_task: Path | None) -> i
     if args.video is not None:
         raise ConfigError("--video: with a run folder only")
     try:
-        path = evaluate_policy_file(policy, eval_task, args.seed, args.trials, device=args.device,
+        path = evaluate_policy_file(policy, eval_task, args.policy_seed, args.trials, device=args.device,
                                     test_offset=args.test_trials)
     except (TrialSetError, CheckpointError) as exc:
         raise ConfigError(str(exc)) from None

@@ -245,6 +245,10 @@ class Status:
     host: str | None = None
     """Host name of the machine whose process `pid` is: on a runs folder shared by several
     machines, only that machine can tell whether the process is alive."""
+    run_id: str | None = None
+    """Random id written when the run folder is created: a copy of the folder (`cp -r RUN
+    RUN.bak`) is the same run, counted once by tables. Folders of earlier versions have none:
+    their folder name identifies them."""
 
     def to_json(self) -> dict[str, Any]:
         return {k: v for k, v in asdict(self).items() if v is not None or k in ("error", "started", "pid")}
@@ -260,7 +264,8 @@ class Status:
                    updated=_number(data, "updated", STATUS_FILE, optional=True),
                    error=_need(data, "error", str, STATUS_FILE, optional=True),
                    cell=_need(data, "cell", str, STATUS_FILE, optional=True),
-                   host=_need(data, "host", str, STATUS_FILE, optional=True))
+                   host=_need(data, "host", str, STATUS_FILE, optional=True),
+                   run_id=_need(data, "run_id", str, STATUS_FILE, optional=True))
 
 
 # ------------------------------------------------------------------------------- log.mcap

@@ -16,12 +16,13 @@ Why the server computes the y range and scales the values (uPlot would do both i
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
+import re2
 
+from server.markup import md_text
 from server.run_index import MetricSeries
 
 X_AXES = ("iteration", "samples", "wall time (min)")
@@ -51,24 +52,44 @@ def curve_groups(keys: Sequence[str]) -> dict[str, list[str]]:
 
 MAX_FILTER = 200
 """Characters of the filter box that count."""
-_NESTED_REPEAT = re.compile(r"[+*}?]\)*\)[+*{?]")
-"""A repeated group that itself ends in a repetition: taken as plain text, not as a regular
-expression (the filter runs on the server, and such patterns can backtrack for minutes)."""
 
 
-def matching(keys: Sequence[str], pattern: str) -> list[str]:
-    """Keys matching the filter box: every word of it (case-insensitive) must match, each
-    word a regular expression ('loss/(value|surrogate)') or, if it is not a valid one, plain
-    text."""
-    tests = []
+def key_filter(pattern: str) -> Callable[[str], bool]:
+    """The filter box as a test of one key: every word of it (case-insensitive) must match,
+    each word a regular expression ('loss/(value|surrogate)') or, if it is not a valid one,
+    plain text.
+
+    Expressions run in RE2 (google-re2), whose time is linear in the key's length whatever
+    the pattern: the filter runs on the server, and Python's backtracking `re` took seconds
+    per key on `(.|.)*Z` or `.*.*.*.*Z` while holding the GIL, which froze every browser. A
+    pattern RE2 refuses (a backreference, a program over its memory bound) is plain text."""
+    tests: list[Callable[[str], bool]] = []
     for word in pattern[:MAX_FILTER].split():
         try:
-            if _NESTED_REPEAT.search(word):
-                raise re.error("nested repetition")  # '(a+)+' can take exponential time
-            tests.append(re.compile(word, re.IGNORECASE).search)
-        except re.error:
+            tests.append(re2.compile(word, _RE2_OPTIONS).search)
+        except re2.error:
             tests.append(lambda k, w=word.lower(): w in k.lower())
-    return [k for k in keys if all(t(k) for t in tests)]
+    return lambda key: all(t(key) for t in tests)
+
+
+_RE2_OPTIONS = re2.Options()
+_RE2_OPTIONS.case_sensitive = False
+_RE2_OPTIONS.max_mem = 1 << 20  # bytes of a compiled word: the box is 200 characters
+_RE2_OPTIONS.log_errors = False
+
+
+def matching(keys: Sequence[str], pattern: str | Callable[[str], bool]) -> list[str]:
+    """Keys matching the filter box (`key_filter`; a compiled filter may be passed)."""
+    test = key_filter(pattern) if isinstance(pattern, str) else pattern
+    return [k for k in keys if test(k)]
+
+
+def legend_markdown(labels: Sequence[str]) -> str:
+    """The Curves tab's legend: each run's label (escaped: it comes from its folder) in its
+    line's colour."""
+    return f"{len(labels)} run(s): " + ", ".join(
+        f"<span style='color:{PALETTE[i % len(PALETTE)]}'>■ {md_text(label)}</span>"
+        for i, label in enumerate(labels))
 
 
 def smooth(y: np.ndarray, weight: float) -> np.ndarray:

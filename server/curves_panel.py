@@ -12,14 +12,14 @@ from __future__ import annotations
 import json
 import math
 import threading
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import viser
 
 from detach.run_contract import METRICS_TOPIC
-from server.curves import PALETTE, X_AXES, Chart, chart, curve_groups, matching, run_curves, \
-    uplot_options
+from server.curves import X_AXES, Chart, chart, curve_groups, key_filter, legend_markdown, matching, \
+    run_curves, uplot_options
 from server.run_index import MetricSeries
 from server.session import Panel, Session, chosen, is_quiet, quietly
 
@@ -57,7 +57,7 @@ def curves_panel(s: Session) -> Panel:
     holder = gui.add_folder("Charts")
     charts: dict[str, tuple[viser.GuiUplotHandle, viser.GuiButtonGroupHandle, Chart]] = {}
     state: dict[str, Any] = {"pins": [], "views": (), "enlarged": None, "versions": None,
-                             "keys": [], "series": {}, "user_view": False}
+                             "keys": [], "series": {}, "user_view": False, "filter": None}
 
     # --- data -------------------------------------------------------------------------------
     def load() -> dict[str, tuple[MetricSeries, int | None]]:
@@ -89,7 +89,15 @@ def curves_panel(s: Session) -> Panel:
             picked = keys
         else:
             picked = groups.get(choice.split(" (")[0], [])
-        return matching(picked, filter_box.value)
+        return matching(picked, current_filter())
+
+    def current_filter() -> Callable[[str], bool]:
+        """The filter box compiled once per text (RE2: linear in each key's length)."""
+        text = filter_box.value if isinstance(filter_box.value, str) else ""
+        cached = state["filter"]
+        if cached is None or cached[0] != text:
+            cached = state["filter"] = (text, key_filter(text))
+        return cached[1]
 
     # --- layout -------------------------------------------------------------------------------
     def update_views() -> None:
@@ -118,9 +126,7 @@ def curves_panel(s: Session) -> Panel:
         elif not runs:
             text = f"The selected runs have no {METRICS_TOPIC} messages yet."
         else:
-            text = f"{len(runs)} run(s): " + ", ".join(
-                f"<span style='color:{PALETTE[i % len(PALETTE)]}'>■ {s.labels.get(r, r)}</span>"
-                for i, r in enumerate(runs))
+            text = legend_markdown([s.labels.get(r, r) for r in runs])
         if legend.content != text:
             legend.content = text
 
@@ -241,8 +247,15 @@ def curves_panel(s: Session) -> Panel:
             with s.lock:
                 redraw(data_changed=False)
 
-    for control in (filter_box, view, x_axis, smoothing, log_y):
+    for control in (view, x_axis, smoothing, log_y):
         control.on_update(control_changed)
+
+    @filter_box.on_update
+    def _(_event: object) -> None:
+        if not is_quiet(quiet):
+            current_filter()  # compiled before this browser's lock is taken
+            with s.lock:
+                redraw(data_changed=False)
 
     @view.on_update
     def _(_event: object) -> None:

@@ -28,6 +28,8 @@ from typing import Any, Sequence
 
 import viser
 
+from server.markup import md_code, md_text
+
 MAX_SEED = 2**31 - 1
 """Seeds are 0 .. 2**31 - 1 (what numpy and torch accept everywhere)."""
 DEFAULT_LIMIT = 2
@@ -187,9 +189,9 @@ def launch_panel(gui: viser.GuiApi, launcher: Launcher | None) -> None:
             request = options.validate(task.value, model.value, seed.value, overrides.value)
             launched = launcher.start(request)
         except LaunchRefused as exc:
-            output.content = f"**Not started:** {exc}"
+            output.content = f"**Not started:** {md_text(exc)}"
             return
-        output.content = f"Started pid {launched.proc.pid}: `python {launched.shown}`"
+        output.content = f"Started pid {launched.proc.pid}: {md_code('python ' + launched.shown)}"
         threading.Thread(target=follow_output, args=(launched, output), daemon=True).start()
 
 
@@ -206,8 +208,9 @@ def follow_output(launched: Launched, output: Any) -> None:
         # progress bars redraw with carriage returns: show each line's final state
         lines = [ln.rsplit("\r", 1)[-1] for ln in text.splitlines() if ln.strip()][-12:]
         state = "running" if code is None else f"exited with code {code}"
-        content = (f"pid {proc.pid} {state}: `python {launched.shown}` (console: "
-                   f"`{launched.log_path}`)\n\n```\n" + "\n".join(lines) + "\n```")
+        content = (f"pid {proc.pid} {state}: {md_code('python ' + launched.shown)} (console: "
+                   f"{md_code(launched.log_path)})\n\n```\n"
+                   + "\n".join(lines).replace("```", "'''") + "\n```")  # the fence stays closed
         if content != last:
             output.content = last = content
         if code is not None:

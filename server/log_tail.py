@@ -30,6 +30,7 @@ import numpy as np
 import zstandard
 
 from detach.run_contract import EPISODE_TOPIC, METRICS_TOPIC, SCENE_TOPIC
+from detach.runs import files as run_files
 from server.episode import Episode, episode_from_frames
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -142,7 +143,14 @@ class LogTail:
                 return False
             before = (len(self.metrics), len(self.chunks), self.scene is not None,
                       self.complete)
-            with open(self.path, "rb") as f:
+            try:  # a regular file inside its run folder only: never a FIFO or a link out
+                fd = run_files.open_run_file(self.path.parent, self.path.name)
+            except run_files.RunFileError as exc:
+                self.problem = f"{self.path.name} {exc.why}"
+                return False
+            except OSError:
+                return False
+            with os.fdopen(fd, "rb") as f:
                 try:
                     self._scan(f, st.st_size)
                 except (struct.error, IndexError, ValueError) as exc:  # a record cut or zeroed
@@ -450,7 +458,7 @@ def closed_cleanly(path: Path) -> bool | None:
     16 bytes; None if it does not even start like an MCAP file. The run index uses this to
     check finished runs without reading their logs (a full scan says why a log is broken)."""
     try:
-        with open(path, "rb") as f:
+        with os.fdopen(run_files.open_run_file(path.parent, path.name), "rb") as f:
             head = f.read(len(MAGIC))
             if head != MAGIC:
                 return None
@@ -458,5 +466,5 @@ def closed_cleanly(path: Path) -> bool | None:
                 return False  # the writer has only just started
             f.seek(-len(MAGIC), os.SEEK_END)
             return f.read(len(MAGIC)) == MAGIC
-    except OSError:
+    except (OSError, ValueError):  # missing, or refused (a FIFO, a link out of the run)
         return None

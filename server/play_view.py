@@ -15,6 +15,7 @@ import numpy as np
 
 from detach.runs.play import PolicyRollout
 from server.episode import Episode
+from server.markup import md_text
 from server.scene_view import RunScene
 
 
@@ -65,8 +66,8 @@ def play_live(rollout: PolicyRollout, host: str = "127.0.0.1", port: int = 8081,
             root = scene.set_frame(episode, 0, text=f"{skill}")
             follow_camera(server, root)
             if rollout.frame % 15 == 0:
-                status.content = (f"**{rollout.run.path.name}** · episode {rollout.episode} · "
-                                  f"{rollout.frame * rollout.dt:.1f} s · {skill}")
+                status.content = (f"**{md_text(rollout.run.path.name)}** · episode {rollout.episode} · "
+                                  f"{rollout.frame * rollout.dt:.1f} s · {md_text(skill)}")
             if realtime:
                 next_time += rollout.dt
                 time.sleep(max(0.0, next_time - time.monotonic()))

@@ -16,6 +16,7 @@ import viser
 
 from server.episode import Episode
 from server.log_tail import EpisodeKey
+from server.markup import md_text
 from server.replay import Replay
 from server.scene_view import SceneView, check_episode
 from server.session import Panel, Session, chosen, is_quiet, quietly
@@ -81,7 +82,7 @@ def replay_panel(s: Session) -> Panel:
         skill = ep.skill[i]
         status.content = (f"**t = {ep.times[i] - ep.times[0]:.2f} s** of "
                           f"{ep.times[-1] - ep.times[0]:.2f} s, frame {i + 1}/{ep.num_frames}"
-                          + (f"  \ncurrent subtask **{ep.subtask[i]}: {skill}**" if skill else ""))
+                          + (f"  \ncurrent subtask **{ep.subtask[i]}: {md_text(skill)}**" if skill else ""))
 
     replay = Replay(draw, on_frame)
     s.dashboard.ticker.add(replay)
@@ -137,11 +138,11 @@ def replay_panel(s: Session) -> Panel:
     def describe(ep: Episode | None) -> None:
         run = shown["a"]
         r = s.infos.get(run) if run else None
-        lines = [f"**{run}**" + (f" ({r.state})" if r else ""), _describe(ep)]
+        lines = [f"**{md_text(run)}**" + (f" ({r.state})" if r else ""), _describe(ep)]
         notes = [*view.a.notes, shown["problem"]]
         if shown["b"]:
-            lines.append(f"beside it (B): **{shown['b']}**")
-        text = "\n\n".join(lines) + ("\n\n" + "\n".join(f"- {n}" for n in notes if n)
+            lines.append(f"beside it (B): **{md_text(shown['b'])}**")
+        text = "\n\n".join(lines) + ("\n\n" + "\n".join(f"- {md_text(n)}" for n in notes if n)
                                      if any(notes) else "")
         if info.content != text:
             info.content = text

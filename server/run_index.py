@@ -29,15 +29,13 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 import numpy as np
-import yaml
 
 from detach.run_contract import (
     CONFIG_FILE, EVAL_FILE, LIVE_STATES, LOG_FILE, RUN_MARKERS, STATUS_FILE, STDOUT_FILE,
     EvalResult, Status, is_eval_file,
 )
+from detach.runs import files as run_files
 from server.log_tail import LogTail, closed_cleanly
-
-_YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
 @dataclass
@@ -129,12 +127,12 @@ def _int_in(block: str, key: str) -> int | None:
 def _parse_config(text: str) -> dict[str, Any]:
     """Only the keys the dashboard shows; deliberately lenient so that runs written by an
     older schema still list (the strict loader is for running, not for browsing)."""
-    data = yaml.load(top_level_blocks(text, _SHOWN_KEYS), Loader=_YAML_LOADER)
+    data = run_files.parse_yaml(top_level_blocks(text, _SHOWN_KEYS), CONFIG_FILE)
     if isinstance(data, dict) and set(_SHOWN_KEYS) <= set(data):
         envs = _int_in(top_level_blocks(text, ("sim",)), "num_envs")
         steps = _int_in(top_level_blocks(text, ("train",)), "num_steps_per_env")
     else:
-        data = yaml.load(text, Loader=_YAML_LOADER)  # not laid out as we write it: all of it
+        data = run_files.parse_yaml(text, CONFIG_FILE)  # not laid out as we write it: all of it
         if not isinstance(data, dict):
             raise ValueError("expected a mapping")
         sim, train = data.get("sim"), data.get("train")
@@ -182,9 +180,12 @@ class RunReader:
             entry.key, entry.value, entry.problem = None, None, f"{name} missing"
         elif key != entry.key:
             entry.key, entry.parses = key, entry.parses + 1
-            try:
-                entry.value = parse((self.path / name).read_text(encoding="utf-8"))
+            try:  # bounded, regular files of this folder only, never blocking
+                entry.value = parse(run_files.read_text(self.path, name))
                 entry.problem = None
+            except run_files.RunFileError as exc:
+                entry.value = None
+                entry.problem = f"{name} {exc.why}"
             except Exception as exc:  # noqa: BLE001 - any bad file becomes a reason
                 entry.value = None
                 entry.problem = f"{name} unreadable ({_short(exc)})"
@@ -328,17 +329,17 @@ class RunReader:
             return result
 
     def config_text(self) -> str:
-        """config.yaml as written (the config view and the diff read it on demand)."""
-        return (self.path / CONFIG_FILE).read_text(encoding="utf-8")
+        """config.yaml as written (the config view and the diff read it on demand); OSError,
+        or RunFileError (one line) for a file that is not a bounded regular file of the run."""
+        return run_files.read_text(self.path, CONFIG_FILE)
 
     def stdout_tail(self, lines: int = 40, max_bytes: int = 64_000) -> str:
-        """The last `lines` lines of stdout.log (progress bars reduced to their final state)."""
-        path = self.path / STDOUT_FILE
+        """The last `lines` lines of stdout.log (progress bars reduced to their final state),
+        or the one line saying why it is not shown."""
         try:
-            with open(path, "rb") as f:
-                size = f.seek(0, os.SEEK_END)
-                f.seek(max(0, size - max_bytes))
-                data = f.read().decode("utf-8", errors="replace")
+            data = run_files.read_tail(self.path, STDOUT_FILE, max_bytes)
+        except run_files.RunFileError as exc:
+            return f"({STDOUT_FILE} {exc.why})"
         except OSError:
             return ""
         shown = [ln.rsplit("\r", 1)[-1] for ln in data.splitlines() if ln.strip()]

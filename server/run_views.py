@@ -12,15 +12,12 @@ from typing import Any, Sequence
 
 import yaml
 
+from detach.runs.files import parse_yaml
+from server.markup import md_code, md_text
 from server.run_index import RunInfo
 
 GROUP_BY = ("nothing", "task", "model", "seed", "sweep cell", "state")
 """What the runs table can be grouped by."""
-
-
-def _md(text: str) -> str:
-    """Escape what would break a Markdown table cell."""
-    return str(text).replace("|", "\\|").replace("\n", " ")
 
 
 def short_id(info: RunInfo) -> str:
@@ -86,21 +83,21 @@ def runs_table(infos: Sequence[RunInfo], selected: Sequence[str] = (), by: str =
         parts.append(f"{len(infos)} of {total} runs match the filter.\n")
     for group, members in group_runs(infos, by).items():
         if by != "nothing":
-            parts.append(f"**{by} {_md(group)}** ({len(members)} run"
+            parts.append(f"**{by} {md_text(group)}** ({len(members)} run"
                          f"{'s' if len(members) != 1 else ''})\n")
         lines = ["| | run | task | model | seed | state | iter | LH SR | updated |",
                  "| :-: | --- | --- | --- | --: | --- | --: | --: | --- |"]
         for r in members:
             state = f"**{r.shown_state}**" if r.unreadable or r.state == "failed" else r.state
             lines.append(" | ".join([
-                "| " + ("✓" if r.run_id in chosen else ""), f"`{_md(short_id(r))}`", _md(r.task),
-                _md(r.model), "-" if r.seed is None else str(r.seed), state,
+                "| " + ("✓" if r.run_id in chosen else ""), f"{md_code(short_id(r))}", md_text(r.task),
+                md_text(r.model), "-" if r.seed is None else str(r.seed), state,
                 "-" if r.iteration is None else str(r.iteration),
                 "-" if r.lh_sr is None else f"{r.lh_sr:.2f}", clock(r.updated)]) + " |")
         parts.append("\n".join(lines) + "\n")
-    notes = [f"- `{_md(r.run_id)}` ({r.state}): " + "; ".join(_md(p) for p in r.problems)
+    notes = [f"- {md_code(r.run_id)} ({r.state}): " + "; ".join(md_text(p) for p in r.problems)
              for r in infos if r.unreadable]
-    notes += [f"- `{_md(r.run_id)}` {r.state}: {_md(r.error)}" for r in infos
+    notes += [f"- {md_code(r.run_id)} {r.state}: {md_text(r.error)}" for r in infos
               if r.error and not r.unreadable]
     if notes:
         parts.append("**Problems**\n\n" + "\n".join(notes) + "\n")
@@ -138,15 +135,15 @@ def run_labels(infos: Sequence[RunInfo]) -> dict[str, str]:
 
 def status_markdown(info: RunInfo) -> str:
     """The status of one run, with its failure reason and the problems of its folder."""
-    lines = [f"**{_md(info.run_id)}**", "",
-             f"- state: **{info.shown_state}**" + (f" (sweep cell `{_md(info.cell)}`)"
+    lines = [f"**{md_text(info.run_id)}**", "",
+             f"- state: **{info.shown_state}**" + (f" (sweep cell {md_code(info.cell)})"
                                                   if info.cell else ""),
              f"- iteration: {info.iteration if info.iteration is not None else '-'}",
              f"- started {clock(info.started)}, updated {clock(info.updated)}",
              f"- LH success on its task: {'-' if info.lh_sr is None else f'{info.lh_sr:.2f}'}"]
     if info.error:
-        lines.append(f"- **error:** {_md(info.error)}")
-    lines += [f"- **problem:** {_md(p)}" for p in info.problems]
+        lines.append(f"- **error:** {md_text(info.error)}")
+    lines += [f"- **problem:** {md_text(p)}" for p in info.problems]
     return "\n".join(lines)
 
 
@@ -167,17 +164,16 @@ def flatten(data: Any, prefix: str = "") -> dict[str, Any]:
 def config_diff(a_text: str, b_text: str) -> list[tuple[str, Any, Any]]:
     """(key, value in a, value in b) of every dotted key whose values differ; a key missing
     on one side has the value None there."""
-    loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
-    a = flatten(yaml.load(a_text, Loader=loader) or {})
-    b = flatten(yaml.load(b_text, Loader=loader) or {})
+    a = flatten(parse_yaml(a_text, "A's config.yaml") or {})  # the CLI's value limit: no alias bomb
+    b = flatten(parse_yaml(b_text, "B's config.yaml") or {})
     return [(k, a.get(k), b.get(k)) for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
 
 
 def diff_markdown(a: str, b: str, rows: Sequence[tuple[str, Any, Any]]) -> str:
     if not rows:
-        return f"`{_md(a)}` and `{_md(b)}` have the same configuration."
+        return f"{md_code(a)} and {md_code(b)} have the same configuration."
     lines = [f"{len(rows)} key(s) differ.", "", "| key | A | B |", "| --- | --- | --- |"]
-    lines += [f"| `{_md(k)}` | {_md(_short_value(va))} | {_md(_short_value(vb))} |"
+    lines += [f"| {md_code(k)} | {md_text(_short_value(va))} | {md_text(_short_value(vb))} |"
               for k, va, vb in rows]
     return "\n".join(lines)
 

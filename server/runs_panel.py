@@ -132,6 +132,8 @@ def runs_panel(s: Session) -> Panel:
                 config.content = _code(reader.config_text())
             except OSError as exc:
                 config.content = f"*{CONFIG_FILE} unreadable ({exc.strerror})*"
+            except ValueError as exc:  # refused: a FIFO, a link out of the run, too large
+                config.content = _code(f"{CONFIG_FILE} {getattr(exc, 'why', exc)}")
         tail = reader.stdout_tail()
         if force or tail != shown["stdout"]:
             stdout.content = _code(tail)

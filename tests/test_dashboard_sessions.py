@@ -285,7 +285,7 @@ def test_garbage_scene_and_frames_become_notes_not_crashes(tmp_path: Path) -> No
     try:
         client.wait_for(lambda: "object 1" in client.text(), what="the notes")
         text = client.text()
-        assert "object 2" in text and "trajectory 0" in text and "body_geoms" in text
+        assert "object 2" in text and "trajectory 0" in text and "body\\_geoms" in text  # Markdown-escaped
         assert "non-finite body poses" in text
         assert _session(dashboard).replay.episode is None, "non-finite poses are refused"
     finally:
@@ -361,7 +361,7 @@ def test_run_details_diff_and_a_second_run_beside_the_first(runs: Path) -> None:
         client.set("Diff with", ids[1])
         client.wait_for(lambda: "key(s) differ" in client.text(), what="the diff")
         text = client.text()
-        assert "`seed` | 0 | 1" in text and "`model_name` | mlp | detach" in text
+        assert "<code>seed</code> | 0 | 1" in text and "<code>model\\_name</code> | mlp | detach" in text
         assert "task_name: lh1" in text, "the config view"
         client.set("Filter", "detach")
         client.wait_for(lambda: "1 of 2 runs match the filter" in client.text(), what="the filter")

