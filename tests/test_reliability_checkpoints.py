@@ -105,6 +105,10 @@ def test_a_checkpoint_that_would_run_code_is_refused(run: RunFolder, tmp_path: P
     said = _one_error_line(capsys)
     assert "train.init_from" in said and "Python objects" in said and "--format init" in said, said
     assert not marker.exists()
+    capsys.readouterr()
+    assert cli.main(["list", "--runs", str(tmp_path / "later")]) == 0  # the failed run says why it failed
+    listed = capsys.readouterr().out
+    assert " failed " in listed and "failed: train.init_from" in listed and "Python objects" in listed, listed
 
 
 def test_a_truncated_checkpoint_falls_back_and_the_log_keeps_each_iteration_once(

@@ -2,7 +2,8 @@
 
 A run whose status.json says `running` but whose process is gone (`kill -9`, a crashed
 machine) is listed as `dead`, with the command that resumes it; a malformed eval.json shows
-as `invalid` with its reason, and never stops the listing of the other runs.
+as `invalid` with its reason, and never stops the listing of the other runs; a failed run
+shows the reason it failed with.
 """
 
 from __future__ import annotations
@@ -32,6 +33,8 @@ def run_row(run: RunFolder) -> dict[str, Any]:
                    f"no checkpoint yet: detach-run --resume {run.path} restarts it from iteration 0")
         row.setdefault("notes", []).append(f"status says {status.state}, but its process {status.pid}{where} "
                                            f"is gone; {started}")
+    if status.state == "failed" and status.error:  # why, where the run itself said it (e.g. a refused init_from)
+        row.setdefault("notes", []).append(f"failed: {status.error.splitlines()[0][:300]}")
     try:
         result = run.eval_result()
     except Exception as exc:  # noqa: BLE001 - one bad eval.json must not hide the other runs
