@@ -608,6 +608,18 @@ def _resume(args: argparse.Namespace) -> int:
         sys.stdout.write(dump(new))
         print(f"# would resume {run.path} from {checkpoint.name}")
         return 0
+    from detach.runs.provenance import code_change_since
+
+    warning = code_change_since(run)
+    if warning:
+        print(warning, flush=True)
+    return _take_up(run, args, cfg, new, f"resuming {run.path} from {checkpoint.name}", checkpoint)
+
+
+def _take_up(run: RunFolder, args: argparse.Namespace, cfg: RunConfig, new: RunConfig, said: str,
+             checkpoint: Path | None) -> int:
+    """Write the run's config if `--resume` changed it, then train on from `checkpoint` (None:
+    from iteration 0) and evaluate, as the run's own job."""
     if new != cfg:
         from detach.runs.folder import atomic_write_text
 
@@ -615,15 +627,10 @@ def _resume(args: argparse.Namespace) -> int:
     from detach.runs.job import run_job
     from detach.runs.session import train_and_evaluate
 
-    from detach.runs.provenance import code_change_since
-
     eval_on = [task_path(extra, "--eval-on") for extra in args.eval_on]
-    warning = code_change_since(run)
-    if warning:
-        print(warning, flush=True)
-    print(f"resuming {run.path} from {checkpoint.name}")
+    print(said, flush=True)
     return run_job(run, lambda r: train_and_evaluate(
-        r, resume=True, eval_tasks=eval_on, trials=None, evaluate=not args.no_eval,
+        r, resume=checkpoint is not None, eval_tasks=eval_on, trials=None, evaluate=not args.no_eval,
         device=args.device, checkpoint=checkpoint, test_offset=args.test_trials))
 
 
@@ -651,19 +658,8 @@ def _restart(run: RunFolder, args: argparse.Namespace) -> int:
         sys.stdout.write(dump(new))
         print(f"# would restart {run.path} from iteration 0 (it has no checkpoint yet)")
         return 0
-    if new != cfg:
-        from detach.runs.folder import atomic_write_text
-
-        atomic_write_text(run.config_path, dump(new))
-    from detach.runs.job import run_job
-    from detach.runs.session import train_and_evaluate
-
-    eval_on = [task_path(extra, "--eval-on") for extra in args.eval_on]
-    print(f"{run.path} has no checkpoint yet: restarting it from iteration 0 with its recorded config",
-          flush=True)
-    return run_job(run, lambda r: train_and_evaluate(
-        r, resume=False, eval_tasks=eval_on, trials=None, evaluate=not args.no_eval, device=args.device,
-        test_offset=args.test_trials))
+    return _take_up(run, args, cfg, new, f"{run.path} has no checkpoint yet: restarting it from iteration 0 "
+                                         f"with its recorded config", None)
 
 
 def _resume_checkpoint(run: RunFolder, cfg: RunConfig, rename: bool = True) -> Path:
