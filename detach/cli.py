@@ -317,7 +317,18 @@ def build_export_parser() -> argparse.ArgumentParser:
                              "policy: the actor alone in float16 with the run's config beside it, which "
                              "`detach-run eval FILE` evaluates without the run folder (default: onnx)")
     parser.add_argument("--output", type=Path, default=None, metavar="FILE",
-                        help="where to write it (default: inside the run folder)")
+                        help="where to write it (default: inside the run folder); with a sweep: the folder "
+                             "the policies and manifest.json go to")
+    ship = parser.add_argument_group("with a sweep YAML as the target: ship the policies of its cells of one stage "
+                                     "(--format policy), each evaluated as the sweep evaluates its cell, with a "
+                                     "manifest")
+    ship.add_argument("--stage", default=None, help="the stage whose cells to export (e.g. lh1)")
+    ship.add_argument("--preset", default=None, metavar="NAME", help="the sweep preset the cells were run under")
+    ship.add_argument("--seeds", type=_seed_list, default=None, metavar="0,1,2", help="instead of the preset's seeds")
+    ship.add_argument("--models", default=None, metavar="A,B", help="only these models (default: the sweep's)")
+    _add_runs(parser, "the runs folder holding the sweep's cells")
+    _add_trials(parser)
+    _add_device(parser)
     return parser
 
 
@@ -504,11 +515,29 @@ def _keys(section: str | None) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
-    """`detach.runs.export.export_run(run_dir, checkpoint=N|None, fmt='onnx'|'jit'|'init', output=Path|None)`."""
+    """`detach.runs.export.export_run(run_dir, checkpoint=N|None, fmt='onnx'|'jit'|'init', output=Path|None)`;
+    of a sweep, `detach.runs.ship.ship_sweep`."""
+    if args.target.suffix in (".yaml", ".yml"):
+        return _ship(args)
     from detach.runs.export import export_run
 
     exported = export_run(args.target, checkpoint=args.checkpoint, fmt=args.fmt, output=args.output)
     print(f"exported to {exported}")
+    return 0
+
+
+def _ship(args: argparse.Namespace) -> int:
+    if args.stage is None or args.output is None:
+        raise ConfigError("exporting a sweep's policies needs --stage (e.g. lh1) and --output FOLDER", str(args.target))
+    if args.fmt not in ("onnx", "policy") or args.checkpoint is not None:  # onnx: the default, not chosen
+        raise ConfigError("a sweep's policies are exported as --format policy, each cell's own policy "
+                          "(no --checkpoint)", str(args.target))
+    from detach.runs.ship import ship_sweep
+
+    manifest = ship_sweep(args.target, args.runs, args.output, args.stage, preset=args.preset, seeds=args.seeds,
+                          models=args.models.split(",") if args.models else None, trials=args.trials,
+                          device=args.device)
+    print(f"manifest written to {manifest}")
     return 0
 
 

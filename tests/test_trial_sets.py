@@ -197,3 +197,31 @@ def test_table_one_measures_zero_shot_climb_and_sit_where_every_trial_starts_at_
         lh1 = [c for c in cells(load_sweep(sweep, preset=preset), sweep) if c.stage == "lh1"]
         assert lh1 and all([t.stem for t in c.evals] == ["lh1", "climb", "sit"] for c in lh1)
         assert all(c.trial_set == "test" for c in lh1)
+
+
+def test_a_sweeps_policies_ship_with_a_manifest_whose_figures_eval_repeats(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    sweep, out, shipped = _one_stage_sweep(tmp_path), tmp_path / "runs", tmp_path / "policies"
+    assert cli.main(["sweep", str(sweep), "--preset", "tiny", "--runs", str(out)]) == 0
+    (run,) = find_runs(out)
+    assert cli.main(["export", str(sweep), "--preset", "tiny", "--stage", "follow", "--runs", str(out),
+                     "--output", str(shipped), "--format", "policy"]) == 0
+    manifest = json.loads((shipped / "manifest.json").read_text())
+    (entry,) = manifest["policies"]
+    assert entry["cell"] == run.status().cell and entry["file"] == "one_stage_tiny_follow_mlp_s0.policy.pt"
+    assert entry["config_digest"] == entry["cell"].rsplit("/", 1)[1] and entry["sha256"]
+    (figure,) = entry["figures"]
+    assert figure["trial_set"] == "test" and figure["trial_seed"] == OFFSET and figure["trials"] == 2
+    assert [f["task"] for f in entry["cell_figures"]] == ["follow"]  # the float32 cell's own, beside it
+    assert (shipped / "manifest.md").read_text().count("one_stage_tiny_follow_mlp_s0.policy.pt") == 1
+    # the manifest's figure, repeated from the shipped file alone
+    before = (shipped / "one_stage_tiny_follow_mlp_s0.policy.eval_follow_s0.test.json").read_text()
+    (shipped / "one_stage_tiny_follow_mlp_s0.policy.eval_follow_s0.test.json").unlink()
+    assert cli.main(["eval", str(shipped / entry["file"]), "--task", "follow", "--trials", "2",
+                     "--test-trials", str(OFFSET)]) == 0
+    again = json.loads((shipped / "one_stage_tiny_follow_mlp_s0.policy.eval_follow_s0.test.json").read_text())
+    first = json.loads(before)
+    assert again["lh_mean"] == first["lh_mean"] and again["trial_scores"] == first["trial_scores"]
+    capsys.readouterr()
+    assert cli.main(["export", str(sweep), "--preset", "tiny", "--runs", str(out), "--output", str(shipped)]) == 2
+    assert "--stage" in capsys.readouterr().err
