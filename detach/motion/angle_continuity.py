@@ -20,7 +20,7 @@ import numpy as np
 from detach.motion.rotations import euler_xyz_from_matrix
 
 TWO_PI = 2.0 * np.pi
-_CLIP_TOL = 1e-3
+CLIP_TOL = 1e-3
 """rad: an angle beyond its range by less than this is not counted as clipped (float noise)."""
 _GIMBAL_COS = 1e-3
 """cos(b) below which the Euler decomposition is at gimbal lock (only a +- c is defined)."""
@@ -126,7 +126,7 @@ def clip_to_ranges(dof: np.ndarray, ranges: np.ndarray, names: tuple[str, ...]) 
     """(dof clipped to ranges [D, 2], report) for dof [F, D] in radians."""
     lo, hi = ranges[:, 0], ranges[:, 1]
     excess = np.maximum(lo - dof, 0.0) + np.maximum(dof - hi, 0.0)
-    clipped = excess > _CLIP_TOL
+    clipped = excess > CLIP_TOL
     frames = clipped.mean(axis=0) if len(dof) else np.zeros(dof.shape[1])
     report = ClipReport(tuple(names), frames, excess.max(axis=0) if len(dof) else np.zeros(dof.shape[1]),
                         float(clipped.mean()) if dof.size else 0.0)

@@ -61,8 +61,10 @@ def _parser() -> argparse.ArgumentParser:
     ls = sub.add_parser("list", help="list clips of a folder (the built-in clips without DIR)")
     ls.add_argument("dir", nargs="?", default=None)
     ls.add_argument("--check", action="store_true",
-                    help="also measure kinematic plausibility (slower); flags: FLOAT (both feet a few cm above "
-                         "their support in most frames), BELOW, RANGE, SELF")
+                    help="also measure kinematic plausibility (slower) and show each imported clip's retarget "
+                         "check (clip%%: angles clipped, bone_deg: mean bone-direction error); flags: FLOAT (both "
+                         "feet a few cm above their support in most frames), BELOW, RANGE, SELF, RETARGET (a "
+                         "retarget target missed: docs/MOCAP.md)")
     bi = sub.add_parser("builtin", help="write the built-in synthetic clips as npz files")
     bi.add_argument("--out", required=True, help="output folder")
     return p
@@ -208,6 +210,7 @@ def _refuse_overwrite(out: Path, source: Path, force: bool) -> None:
 
 def _report(out: Path, clip, clipped: float) -> str:
     from detach.motion.plausibility import FLOAT_CLEARANCE, foot_clearance
+    from detach.motion.retarget_check import RetargetCheck
     from detach.motion.travel import root_travel
 
     travel = root_travel(clip.root_pos, clip.fps)
@@ -219,6 +222,12 @@ def _report(out: Path, clip, clipped: float) -> str:
             f"(net {travel.net_displacement:.2f} m), mean path speed {travel.path_speed:.2f} m/s, "
             f"{100 * clipped:.1f}% of angles clipped to joint ranges{' (' + worst + ')' if worst else ''}, "
             f"a foot on the floor in {grounded:.0%} of frames")
+    check = RetargetCheck.from_meta(clip.meta)
+    if check is not None:
+        line += f", {check.summary()}"
+        missed = check.problems(clip.skill)
+        if missed:
+            line += f" (CHECK: {'; '.join(missed)})"
     if grounded < 0.5:
         line += " (FLOATING: check the map's axes/scale)"
     return line
@@ -244,7 +253,8 @@ def _list(args) -> int:
     print(f"{where}: {len(clips)} clip(s)")
     head = f"{'name':<20} {'skill':<8} {'frames':>6} {'fps':>6} {'secs':>6} {'path_m':>7} {'m/s':>5}"
     if args.check:
-        head += f" {'foot_min':>8} {'float%':>6} {'self_min':>8} {'skate':>6} flags"
+        head += (f" {'foot_min':>8} {'float%':>6} {'self_min':>8} {'skate':>6} {'clip%':>6} {'bone_deg':>8} "
+                 f"{'worst_joint':<16} flags")
     print(head)
     for c in clips:
         print(_row(c, args.check), flush=True)
@@ -260,9 +270,22 @@ def _row(c, check: bool) -> str:
     if check:
         from detach.motion.plausibility import check_clip
 
+        from detach.motion.retarget_check import RetargetCheck
+
         p = check_clip(c)
         row += (f" {p.lowest_foot:>8.3f} {100 * p.floating_fraction:>6.1f} {p.min_self_distance:>8.3f} "
-                f"{p.foot_skate:>6.2f} {' '.join(p.flags()) or '-'}")
+                f"{p.foot_skate:>6.2f} ")
+        imported = RetargetCheck.from_meta(c.meta)
+        flags = p.flags()
+        if imported is None:  # built-in clips, or imported before the check existed
+            row += f"{'-':>6} {'-':>8} {'-':<16} "
+        else:
+            worst = imported.worst(1)[0] if imported.joints else None
+            row += (f"{100 * imported.clipped_fraction:>6.1f} {imported.bone_error_deg:>8.1f} "
+                    f"{(f'{worst.name}:{worst.bone_error_deg:.0f}' if worst else '-'):<16} ")
+            if imported.problems(c.skill):
+                flags.append("RETARGET")
+        row += " ".join(flags) or "-"
     return row
 
 

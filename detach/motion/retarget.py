@@ -31,14 +31,17 @@ from pathlib import Path
 import numpy as np
 
 from detach.character.body import BODY_NAMES, DOF_NAMES, JOINT_GROUPS, dof_ranges
-from detach.motion.angle_continuity import clip_to_ranges, continuous_euler_xyz, continuous_track
+from detach.motion.angle_continuity import CLIP_TOL, clip_to_ranges, continuous_euler_xyz, continuous_track
 from detach.motion.bvh_import import BvhData, read_bvh
 from detach.motion.clip import MotionClip, clip_from_arrays
 from detach.motion.joint_map import (MAPS_DIR, BoundMap, JointMap, RetargetError, available_maps, bind,
                                      child_bodies, choose_map, load_map)
+from detach.motion.joint_solve import solve_in_range
 from detach.motion.kinematics import humanoid_fk
-from detach.motion.rotations import (min_rotation, quat_conj, quat_continuous, quat_mul, quat_rotate, quat_to_matrix,
-                                     slerp, twist_angle)
+from detach.motion.plausibility import FLOAT_CLEARANCE
+from detach.motion.retarget_check import bone_axis, bone_errors, make_check
+from detach.motion.rotations import (matrix_from_euler_xyz, matrix_to_quat, min_rotation, quat_conj, quat_continuous,
+                                     quat_from_axis_angle, quat_mul, quat_rotate, quat_to_matrix, slerp, twist_angle)
 
 __all__ = ["MAPS_DIR", "RetargetError", "available_maps", "import_bvh", "load_map", "retarget", "source_axes",
            "source_scale"]
@@ -123,10 +126,13 @@ def retarget(bvh: BvhData, jmap: JointMap | None = None, skill: str = "walk", na
     bidx = {n: i for i, n in enumerate(BODY_NAMES)}
 
     f = bvh.num_frames
-    world = {"pelvis": g[:, bvh.index(bound.root)]}
+    world = {"pelvis": g[:, bvh.index(bound.root)]}  # target world rotations of our bodies
+    achieved = {"pelvis": world["pelvis"]}  # what our angles (inside the ranges) give
     body_group = {grp.body: grp for grp in JOINT_GROUPS}
     m = humanoid_fk().model
     angles: dict[str, np.ndarray] = {}
+    report_angles: dict[str, np.ndarray] = {}
+    rest_fix: dict[str, np.ndarray] = {}
     for body in BODY_NAMES[1:]:  # tree order: a parent's world rotation is known first
         parent = m.body(m.body_parentid[m.body(body).id]).name
         grp = body_group.get(body)
@@ -137,27 +143,39 @@ def retarget(bvh: BvhData, jmap: JointMap | None = None, skill: str = "walk", na
                 ours = ours_rest[bidx[child_bodies(body)[0]]] - ours_rest[bidx[body]]
                 theirs = rest[bvh.index(aim)] - rest[bvh.index(src)]
                 q = min_rotation(ours, theirs)
+            rest_fix[grp.name] = q
             world[body] = quat_mul(g[:, bvh.index(src)], np.broadcast_to(q, (f, 4)))
         else:
-            world[body] = world[parent]
-        if grp is not None:
-            local = quat_mul(quat_conj(world[parent]), world[body])
-            angles[grp.name] = _angles(local, grp)
+            world[body] = achieved[parent]
+        if grp is None:
+            achieved[body] = achieved[parent]
+            continue
+        # relative to what the parent achieved: a parent held by its ranges is made up for below
+        local = quat_mul(quat_conj(achieved[parent]), world[body])
+        angles[grp.name], report_angles[grp.name] = _angles(local, grp)
+        achieved[body] = quat_mul(achieved[parent], _joint_quat(angles[grp.name], grp))
     dof = np.concatenate([angles[grp.name] for grp in JOINT_GROUPS], axis=1)  # DOF_NAMES order
-    dof, report = clip_to_ranges(dof, dof_ranges(), tuple(DOF_NAMES))
+    report_dof = np.concatenate([report_angles[grp.name] for grp in JOINT_GROUPS], axis=1)
+    _, report = clip_to_ranges(report_dof, dof_ranges(), tuple(DOF_NAMES))
+    dof = np.clip(dof, dof_ranges()[:, 0], dof_ranges()[:, 1])
     root_quat = quat_continuous(world["pelvis"])
     root_pos = (_joint_path(bvh, bvh.index(bound.root), g_file) @ c.T) * scale
+    fk_src = humanoid_fk().run(root_pos, root_quat, dof)
+    errors = bone_errors(bvh, bound, c, g, rest_fix, fk_src.body_mat)
     src_fps = _snap_fps(1.0 / bvh.frame_time)
-    if fps is not None and abs(fps - src_fps) > 1e-9:
+    resampled = fps is not None and abs(fps - src_fps) > 1e-9
+    if resampled:
         root_pos, root_quat, dof = _resample(root_pos, root_quat, dof, src_fps, fps)
     out_fps = src_fps if fps is None else float(fps)
-    fk = humanoid_fk().run(root_pos, root_quat, dof)
+    fk = humanoid_fk().run(root_pos, root_quat, dof) if resampled else fk_src
     shift = np.array([-root_pos[0, 0], -root_pos[0, 1], -fk.foot_bottom.min()])
+    grounded = float(((fk.foot_bottom + shift[2]).min(axis=1) <= FLOAT_CLEARANCE).mean())
+    check = make_check(errors, _clipped_frames(report_dof), report.fraction, grounded)
     clip = clip_from_arrays(name or Path(bvh.path).stem, skill, out_fps, root_pos + shift, root_quat, dof,
                             fk.body_pos + shift, where=where,
                             meta={"source": str(bvh.path), "map": bound.map.name, "scale": scale,
                                   "source_fps": src_fps, "clipped_fraction": report.fraction,
-                                  "clipping": report.as_dict(), "synthetic": False})
+                                  "clipping": report.as_dict(), "check": check.as_meta(), "synthetic": False})
     return clip, report.fraction
 
 
@@ -176,22 +194,50 @@ def _joint_path(bvh: BvhData, joint: int, global_quat: np.ndarray) -> np.ndarray
     return pos
 
 
-def _angles(local: np.ndarray, grp) -> np.ndarray:
-    """[F, len(axes)] continuous (unclipped) hinge angles of one joint group from its local
-    rotations [F, 4]."""
+def _angles(local: np.ndarray, grp) -> tuple[np.ndarray, np.ndarray]:
+    """([F, len(axes)] hinge angles of one joint group from its local rotations [F, 4], the
+    angles for the clipping report): hinge-like joints take the continuous twist (clipped
+    later); 3-hinge joints the continuous Euler angles, re-solved inside the ranges where they
+    leave them (`joint_solve`)."""
     if len(grp.axes) == 1:
         (lo, hi), = grp.ranges
-        return continuous_track(twist_angle(local, "xyz".index(grp.axes)), lo, hi)[:, None]
+        track = continuous_track(twist_angle(local, "xyz".index(grp.axes)), lo, hi)[:, None]
+        return track, track
     spans = [hi - lo for lo, hi in grp.ranges]
     narrow = [i for i, s in enumerate(spans) if s < _HINGE_LIKE_RANGE]
     if grp.axes == "xyz" and len(narrow) == 2:
         out = np.zeros((len(local), 3))
         k = ({0, 1, 2} - set(narrow)).pop()
         out[:, k] = continuous_track(twist_angle(local, k), *grp.ranges[k])
-        return out
+        return out, out
     if grp.axes != "xyz":
         raise RetargetError(f"joint group {grp.name}: unsupported hinge axes {grp.axes!r}")
-    return continuous_euler_xyz(quat_to_matrix(local), np.asarray(grp.ranges, dtype=np.float64))
+    ranges = np.asarray(grp.ranges, dtype=np.float64)
+    mats = quat_to_matrix(local)
+    return solve_in_range(mats, continuous_euler_xyz(mats, ranges), ranges, bone_axis(grp.body))
+
+
+def _joint_quat(angles: np.ndarray, grp) -> np.ndarray:
+    """[F, 4] local rotation of a joint group at its angles [F, len(axes)] (clipped to its ranges)."""
+    ranges = np.asarray(grp.ranges, dtype=np.float64)
+    a = np.clip(angles, ranges[:, 0], ranges[:, 1])
+    if len(grp.axes) == 1:
+        axis = np.zeros(3)
+        axis["xyz".index(grp.axes)] = 1.0
+        return quat_from_axis_angle(axis, a[:, 0])
+    return matrix_to_quat(matrix_from_euler_xyz(a[:, 0], a[:, 1], a[:, 2]))
+
+
+def _clipped_frames(report_dof: np.ndarray) -> dict[str, float]:
+    """Share of frames in which any hinge of each joint group leaves its range ([F, 32] angles
+    before clipping, as reported)."""
+    ranges = dof_ranges()
+    out = np.maximum(ranges[:, 0] - report_dof, 0.0) + np.maximum(report_dof - ranges[:, 1], 0.0) > CLIP_TOL
+    shares, k = {}, 0
+    for grp in JOINT_GROUPS:
+        shares[grp.name] = float(out[:, k:k + len(grp.axes)].any(axis=1).mean()) if len(out) else 0.0
+        k += len(grp.axes)
+    return shares
 
 
 def _snap_fps(fps: float) -> float:
