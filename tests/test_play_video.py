@@ -123,6 +123,8 @@ def test_play_live_in_viser(run: RunFolder) -> None:
         rollout = PolicyRollout(run)
         assert play_live(rollout, steps=5, realtime=False, server=server) == 5
         assert rollout.frame == 5 and rollout.scene.bodies
+        drawn = set(server.scene._handle_from_node_name)  # the task markers of the last frame
+        assert {"/play/task/path_remaining", "/play/task/target_0", "/play/task/caption"} <= drawn, drawn
         camera = SimpleNamespace(position=(3.0, 0.0, 2.0), look_at=(0.0, 0.0, 0.9))
         client = SimpleNamespace(camera=camera, atomic=lambda: _Null())
         fake = SimpleNamespace(get_clients=lambda: {0: client})

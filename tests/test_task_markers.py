@@ -112,3 +112,49 @@ def test_log_mcap_carries_each_frames_markers_for_foxglove(tmp_path: Path) -> No
     last = {e["id"]: e for e in updates[2][2]["entities"]}
     assert last["task/verdict"]["texts"][0]["text"] == "FAILURE (0/1 subtasks)"
     assert "task/verdict" not in second
+
+
+def _port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_dashboard_replay_draws_each_frames_markers(tmp_path: Path) -> None:
+    """The replay's 3D view (viser) draws the markers of the frame shown: the path cut where
+    that frame's reference point is, the live target, the caption; the closing frame's verdict;
+    nothing once no episode is shown."""
+    import viser
+
+    from server.episode import episode_from_frames
+    from server.scene_view import RunScene
+
+    scene = SceneMessage("follow", [], {}, [SIT], ["pelvis"], [])
+    frames = [EpisodeFrame(3, k, k / 30, ["pelvis"], [[0.1 * k, 0, 0.9]], [[1, 0, 0, 0]], skill="follow",
+                           target=[2.0, 1.0, 0.0], path=PATH.tolist() if k == 0 else None, path_index=0.5 * k,
+                           outcome="success" if k == 4 else "", scores=[1.0] if k == 4 else None).to_json()
+              for k in range(5)]
+    ep = episode_from_frames(3, frames, 0)
+    server = viser.ViserServer(host="127.0.0.1", port=_port(), verbose=False)
+    try:
+        view = RunScene(server.scene, server.atomic, "a")
+        view.show(scene.to_json(), tmp_path, np.zeros(3))
+        nodes = server.scene._handle_from_node_name
+        view.set_markers(view.frame_markers(ep, 1))
+        assert {"path/done", "path/remaining", "path/reference", "target/0", "target/1", "target/ring",
+                "caption"} <= set(view.markers.names)
+        remaining = nodes["/a/task/path_remaining"]
+        np.testing.assert_allclose(remaining.points[0, 0], [0.5, 0.0, 0.05], atol=1e-6)
+        assert not nodes["/a/targets/0"].visible, "the scene's plain target gives way to the markers"
+        view.set_markers(view.frame_markers(ep, 3))
+        np.testing.assert_allclose(remaining.points[0, 0], [1.5, 0.0, 0.05], atol=1e-6)  # updated in place
+        assert nodes["/a/task/caption"].text == "subtask 0: Follow · t = 0.1 s"
+        view.set_markers(view.frame_markers(ep, 4, "B · "))
+        assert nodes["/a/task/verdict"].text == "B · SUCCESS (1/1 subtasks)"
+        view.hide_character()
+        assert view.markers.names == [] and not any(n.startswith("/a/task/") for n in nodes)
+        assert nodes["/a/targets/0"].visible
+    finally:
+        server.stop()

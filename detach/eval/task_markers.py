@@ -42,8 +42,8 @@ FAILURE_COLOR: RGB = (230, 30, 30)
 TEXT_COLOR: RGB = (255, 255, 255)
 SUCCESS_RADIUS = 0.3
 """The ring around the current target: the paper's success distance (`env.success_threshold`)."""
-PATH_Z = 0.03
-"""Height of the path over the floor (m), above the floor's own lines."""
+PATH_Z = 0.05
+"""Height of the path over the floor (m), above the floor's lines and a scene's planned paths."""
 MAX_PATH_POINTS = 4096
 """A recorded path longer than this is dropped (a shipped path has ~100 vertices)."""
 MAX_SCORES = 64
@@ -224,6 +224,22 @@ class PathMemo:
 
     def forget(self, key: Any) -> None:
         self._paths.pop(key, None)
+
+
+def scene_targets(scene: Any) -> list[SceneTarget]:
+    """The well-formed targets of a /scene message read from a log (malformed ones dropped)."""
+    targets = scene.get("targets") if isinstance(scene, dict) else None
+    out = []
+    for t in targets if isinstance(targets, list) else ():
+        if not isinstance(t, dict):
+            continue
+        sub, skill, pos, color = t.get("subtask"), t.get("skill"), _finite(t.get("pos"), 3), t.get("color")
+        if not isinstance(sub, int) or isinstance(sub, bool) or not isinstance(skill, str) or pos is None:
+            continue
+        rgb = _finite(color, 3)
+        out.append(SceneTarget(sub, skill[:MAX_TEXT], pos.tolist(),
+                               [int(np.clip(c, 0, 255)) for c in rgb] if rgb is not None else list(TARGET_COLOR)))
+    return out
 
 
 def task_state(frame: dict[str, Any], root: Any, path: np.ndarray | None) -> TaskState:
