@@ -179,7 +179,7 @@ def task_markers(targets: Sequence[SceneTarget], state: TaskState) -> list[Marke
         mark = SUCCESS_COLOR if ok else FAILURE_COLOR
         reached = f" ({sum(s >= 1.0 for s in state.scores)}/{len(state.scores)} subtasks)" if state.scores else ""
         out.append(Disc("verdict/ring", root, 0.7, mark, 0.7))
-        out.append(Text("verdict", ("SUCCESS" if ok else "FAILURE") + reached, above + np.array([0.0, 0.0, 0.25]),
+        out.append(Text("verdict", ("SUCCESS" if ok else "FAILURE") + reached, above + np.array([0.0, 0.0, 0.45]),
                         mark))
     return out
 

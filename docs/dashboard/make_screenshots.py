@@ -98,8 +98,12 @@ def shoot(url: str, runs: list[str], out: Path, only: tuple[str, ...] = SHOTS) -
         select(page, "Beside it", runs[0])
         page.mouse.move(5, 5)
         time.sleep(6)
-        page.get_by_role("button", name="Pause").first.click(force=True)  # hold a frame mid-episode
-        time.sleep(2)
+        page.get_by_role("button", name="Pause").first.click(force=True)
+        frame = page.get_by_role("slider").nth(1)  # Speed, then Frame
+        frame.focus()
+        frame.press("End")  # the closing frame: the walked path, the task markers and the verdict
+        page.mouse.move(5, 5)
+        time.sleep(3)
         save(page, "replay")
 
         page.get_by_role("tab", name="Curves").first.click(force=True)
