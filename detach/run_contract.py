@@ -11,7 +11,8 @@ project: any layer may read it. docs/ARCHITECTURE.md ("Run folder") describes it
         stdout.log           everything the run printed
         log.mcap             /metrics `MetricsMessage` per iteration, /scene `SceneMessage`,
                              /episode/bodies `EpisodeFrame` per recorded frame; for Foxglove
-                             /tf (frame transforms) and /foxglove/scene (the scene's meshes)
+                             /tf (frame transforms), /foxglove/scene (the scene's meshes) and
+                             /foxglove/task (each frame's task markers)
         checkpoints/model_<iteration>.pt
         checkpoints/amp_replay_<iteration>.pt   AMP replay buffer of the newest checkpoint
         selection.json       with train.select_checkpoint_trials: each checkpoint's validation
@@ -390,14 +391,40 @@ class EpisodeFrame:
     subtask: int = 0
     skill: str = ""
     trial: int = 0
+    target: list[float] | None = None
+    """The current subtask's target now (world, m): what the task markers draw; None where
+    the recorder had none (logs of earlier versions)."""
+    path: list[list[float]] | None = None
+    """The XY path the current Follow subtask walks, written only on the frames where it
+    changed (the first frame of a recording, a new Follow subtask; [] when the subtask walks
+    none): readers carry it forward (`detach.eval.task_markers.PathMemo`)."""
+    path_index: float | None = None
+    """Where the moving reference point is on `path`, as a fractional vertex index: the done
+    part of the path lies before it."""
+    outcome: str = ""
+    """"success" or "failure" on the frame that closes a recorded episode (it repeats the
+    last pose: the env has reset by the time the verdict is known), else empty."""
+    scores: list[float] | None = None
+    """Each subtask's score (1: succeeded), on the closing frame."""
 
     def to_json(self) -> dict[str, Any]:
-        return {"episode": int(self.episode), "trial": int(self.trial), "frame": int(self.frame),
+        data = {"episode": int(self.episode), "trial": int(self.trial), "frame": int(self.frame),
                 "time": float(self.time),
                 "bodies": list(self.bodies),
                 "pos": [[round(float(v), 5) for v in p] for p in self.pos],
                 "quat": [[round(float(v), 5) for v in q] for q in self.quat],
                 "objects": list(self.objects), "subtask": int(self.subtask), "skill": self.skill}
+        if self.target is not None:
+            data["target"] = [round(float(v), 4) for v in self.target]
+        if self.path is not None:
+            data["path"] = [[round(float(v), 3) for v in p[:2]] for p in self.path]
+        if self.path_index is not None:
+            data["path_index"] = round(float(self.path_index), 3)
+        if self.outcome:
+            data["outcome"] = self.outcome
+        if self.scores is not None:
+            data["scores"] = [float(v) for v in self.scores]
+        return data
 
 
 # ------------------------------------------------------------------------------- eval.json
@@ -567,7 +594,9 @@ MCAP_SCHEMAS: dict[str, dict[str, Any]] = {
                                    "time": {"type": "number"}, "bodies": {"type": "array", "items": {"type": "string"}},
                                    "pos": {"type": "array"}, "quat": {"type": "array"},
                                    "objects": {"type": "array"}, "subtask": {"type": "integer"},
-                                   "skill": {"type": "string"}},
+                                   "skill": {"type": "string"}, "target": {"type": "array"},
+                                   "path": {"type": "array"}, "path_index": {"type": "number"},
+                                   "outcome": {"type": "string"}, "scores": {"type": "array"}},
                     "required": ["episode", "frame", "bodies", "pos", "quat"]},
 }
 """JSON schemas of the project's topics, registered in every log.mcap."""

@@ -10,6 +10,8 @@ from typing import Any
 
 import numpy as np
 
+from detach.eval.task_markers import PathMemo, TaskState, task_state
+
 
 @dataclass
 class Episode:
@@ -30,6 +32,8 @@ class Episode:
     """Dynamic object name -> ([F, 3] positions, [F, 4] wxyz), carried forward over gaps."""
     trial: int = 0
     """Which trial of the episode number (an evaluation records all of its trials)."""
+    task: list[TaskState] = field(default_factory=list)
+    """Per frame, what its task markers are drawn from (target, Follow path, verdict)."""
 
     @property
     def num_frames(self) -> int:
@@ -73,9 +77,11 @@ def episode_from_frames(number: int, frames: list[dict[str, Any]], trial: int = 
                     p[i] = o.get("pos", p[i])
                     q[i] = o.get("quat", (1.0, 0.0, 0.0, 0.0))
         objects[name] = (_fill_forward(p), _fill_forward(q))
+    paths = PathMemo()
+    task = [task_state(m, pos[i, 0], paths.update(0, m)) for i, m in enumerate(good)]
     return Episode(number, bodies, times, pos, quat,
                    np.asarray([int(m.get("subtask", 0)) for m in good]),
-                   [str(m.get("skill", "")) for m in good], objects, trial)
+                   [str(m.get("skill", "")) for m in good], objects, trial, task)
 
 
 def _fill_forward(a: np.ndarray) -> np.ndarray:

@@ -20,6 +20,7 @@ import os
 import re
 import struct
 import threading
+import zlib
 from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
@@ -66,6 +67,8 @@ class ChunkRef:
     """(episode, trial) of each message in `bodies`, once the chunk was decoded."""
     frames: list[int] | None = None
     """Frame number of each message in `bodies` (-1 if unknown), with `episodes`."""
+    crc: int = 0
+    """CRC-32 of the uncompressed records (0: the writer wrote none)."""
 
 
 _local = threading.local()
@@ -118,11 +121,22 @@ class LogTail:
         self.complete = False
         """The footer and the closing magic were read: the writer closed the file."""
         self._expect_magic = True
-        self.problem: str | None = None
+        self.stopped: str | None = None
         """Why reading stopped for good (corrupt bytes); None while everything parses."""
+        self.bad_chunk: str | None = None
+        """A chunk whose frames could not be decompressed (reading goes on past it)."""
         self.version = 0
         """Bumped whenever new messages were read (cheap change detection for callers)."""
         self._cache.clear()
+
+    @property
+    def problem(self) -> str | None:
+        """What is wrong with the file: why reading stopped, else a chunk left out, else None."""
+        return self.stopped or self.bad_chunk
+
+    @problem.setter
+    def problem(self, text: str | None) -> None:
+        self.stopped = text
 
     # --- scanning -----------------------------------------------------------------------
     def refresh(self) -> bool:
@@ -139,7 +153,7 @@ class LogTail:
                 self._reset()  # replaced or rewritten: start over
                 self.inode = st.st_ino
             self.size = st.st_size
-            if self.problem is not None or self.offset >= self.size:
+            if self.stopped is not None or self.offset >= self.size:
                 return False
             before = (len(self.metrics), len(self.chunks), self.scene is not None,
                       self.complete)
@@ -154,7 +168,7 @@ class LogTail:
                 try:
                     self._scan(f, st.st_size)
                 except (struct.error, IndexError, ValueError) as exc:  # a record cut or zeroed
-                    self.problem = self.problem or (
+                    self.problem = self.stopped or (
                         f"{self.path.name}: corrupt record near byte {self.offset} ({exc}); "
                         f"showing what was read before it")
             changed = before != (len(self.metrics), len(self.chunks),
@@ -229,17 +243,17 @@ class LogTail:
             # Its indexes may still be on their way (or never come): decode the chunk itself.
             self._finish_chunk(f, pending, {}, trust_index=False)
 
-    def _chunk_header(self, f, pos: int, length: int) -> tuple[int, int, str, int]:
+    def _chunk_header(self, f, pos: int, length: int) -> tuple[int, int, str, int, int]:
         head = f.read(min(length, 64))
-        (usize,) = struct.unpack_from("<Q", head, 16)
+        usize, crc = struct.unpack_from("<QI", head, 16)
         compression, at = _string(head, 28)
         (data_len,) = struct.unpack_from("<Q", head, at)
-        return pos + _REC.size + at + 8, data_len, compression, usize
+        return pos + _REC.size + at + 8, data_len, compression, usize, crc
 
-    def _finish_chunk(self, f, chunk: tuple[int, int, str, int], indexes: dict[int, list[int]],
+    def _finish_chunk(self, f, chunk: tuple[int, int, str, int, int], indexes: dict[int, list[int]],
                       trust_index: bool = True) -> None:
         """Use the chunk's MessageIndex records if they name only known channels, else decode it."""
-        data_offset, data_len, compression, usize = chunk
+        data_offset, data_len, compression, usize, crc = chunk
         topics = {self.channels.get(c) for c in indexes}
         if trust_index and indexes and None not in topics:
             by_topic: dict[str, list[int]] = {}
@@ -247,7 +261,7 @@ class LogTail:
                 by_topic.setdefault(self.channels[c], []).extend(offs)
             bodies = sorted(by_topic.get(BODIES, []))
             if bodies:
-                self.chunks.append(ChunkRef(data_offset, data_len, compression, usize, bodies))
+                self.chunks.append(ChunkRef(data_offset, data_len, compression, usize, bodies, crc=crc))
             wanted = sorted(by_topic.get(METRICS, []) + by_topic.get(SCENE, []))
             if not wanted:
                 return
@@ -262,7 +276,7 @@ class LogTail:
             return
         bodies = self._scan_records(records)
         if bodies:
-            self.chunks.append(ChunkRef(data_offset, data_len, compression, usize, bodies))
+            self.chunks.append(ChunkRef(data_offset, data_len, compression, usize, bodies, crc=crc))
 
     def _read_chunk(self, f, data_offset: int, data_len: int, compression: str,
                     usize: int) -> bytes | None:
@@ -270,7 +284,7 @@ class LogTail:
         try:
             return _decompress(f.read(data_len), compression, usize)
         except Exception as exc:  # noqa: BLE001 - one bad chunk must not hide the rest
-            self.problem = self.problem or (
+            self.problem = self.stopped or (
                 f"{self.path.name}: chunk at byte {data_offset} does not decompress ({exc}); "
                 f"skipped")
             return None
@@ -301,7 +315,7 @@ class LogTail:
     def _message(self, records: bytes, at: int) -> None:
         """Parse one /metrics or /scene message record at `at` (others are ignored)."""
         if not 0 <= at <= len(records) - _DATA_AT:
-            self.problem = self.problem or (
+            self.problem = self.stopped or (
                 f"{self.path.name}: a message index points past its chunk; message skipped")
             return
         _op, length = _REC.unpack_from(records, at)
@@ -340,6 +354,8 @@ class LogTail:
             f.seek(chunk.data_offset)
             raw = f.read(chunk.data_length)
         data = _decompress(raw, chunk.compression, chunk.uncompressed_size)
+        if chunk.crc and zlib.crc32(data) != chunk.crc:  # zeroed or altered bytes may still decompress
+            raise ValueError("CRC mismatch")
         self._cache[chunk.data_offset] = data
         while len(self._cache) > self._cache_size:
             self._cache.popitem(last=False)
@@ -349,7 +365,9 @@ class LogTail:
         if chunk.episodes is None:
             try:
                 records = self._records(chunk)
-            except Exception:  # noqa: BLE001 - an undecodable chunk holds no episode
+            except Exception as exc:  # noqa: BLE001 - an undecodable chunk holds no episode: say so
+                self.bad_chunk = self.bad_chunk or (f"{self.path.name}: chunk at byte {chunk.data_offset} cannot "
+                                                    f"be decompressed ({type(exc).__name__}); its frames are left out")
                 chunk.episodes, chunk.frames = [NO_EPISODE] * len(chunk.bodies), [-1] * len(chunk.bodies)
                 return chunk.episodes
             eps, frames = [], []

@@ -2,8 +2,10 @@
 
 The scene is drawn once with the dashboard's own drawing code (`server.scene_view.RunScene`,
 the /scene message of the rollout's env); every control step poses the character and the
-dynamic objects, paced at the control rate, and every connected browser's camera follows the
-character (keeping the distance and angle the user chose).
+dynamic objects and draws the task markers (`detach.eval.task_markers`, as in the video and
+the replay; an episode's end holds its verdict for `VERDICT_HOLD_S`), paced at the control
+rate, and every connected browser's camera follows the character (keeping the distance and
+angle the user chose).
 """
 
 from __future__ import annotations
@@ -13,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from detach.runs.play import PolicyRollout
+from detach.eval.task_markers import TaskState
+from detach.runs.play import VERDICT_HOLD_S, PolicyRollout
 from server.episode import Episode
 from server.markup import md_text
 from server.scene_view import RunScene
@@ -26,7 +29,9 @@ def snapshot_episode(rollout: PolicyRollout) -> Episode:
                for o in snap.objects}
     return Episode(rollout.episode, list(snap.bodies), np.array([rollout.frame * rollout.dt]),
                    np.asarray(snap.body_pos, dtype=float)[None], np.asarray(snap.body_quat, dtype=float)[None],
-                   np.array([snap.subtask]), [snap.skill], objects)
+                   np.array([snap.subtask]), [snap.skill], objects,
+                   task=[TaskState(rollout.frame * rollout.dt, snap.subtask, snap.skill, snap.body_pos[0], snap.target,
+                                   snap.path, snap.path_index)])
 
 
 def follow_camera(server, point: np.ndarray, distance: float = 4.0) -> None:
@@ -57,21 +62,38 @@ def play_live(rollout: PolicyRollout, host: str = "127.0.0.1", port: int = 8081,
     for note in scene.show(rollout.scene.to_json(), rollout.run.path, np.zeros(3)):
         print(f"note: {note}", flush=True)
     status = server.gui.add_markdown("")
-    played = 0
+    played, shown_episode, last = 0, rollout.episode, None
+
+    def verdict() -> None:
+        """The ended episode's last frame again, with its success or failure mark."""
+        nonlocal next_time
+        if last is None:
+            return
+        scene.set_markers(rollout.markers(rollout.verdict(last)))
+        if realtime:
+            time.sleep(VERDICT_HOLD_S)
+            next_time = time.monotonic()
+
     try:
         next_time = time.monotonic()
         for _ in rollout.steps(episodes, steps):
+            if rollout.episode != shown_episode:
+                verdict()
+                shown_episode = rollout.episode
             episode = snapshot_episode(rollout)
-            skill = episode.skill[0]
-            root = scene.set_frame(episode, 0, text=f"{skill}")
+            last = episode.task[0]
+            root = scene.set_frame(episode, 0)
+            scene.set_markers(rollout.markers(last))
             follow_camera(server, root)
             if rollout.frame % 15 == 0:
                 status.content = (f"**{md_text(rollout.run.path.name)}** · episode {rollout.episode} · "
-                                  f"{rollout.frame * rollout.dt:.1f} s · {md_text(skill)}")
+                                  f"{rollout.frame * rollout.dt:.1f} s · {md_text(episode.skill[0])}")
             if realtime:
                 next_time += rollout.dt
                 time.sleep(max(0.0, next_time - time.monotonic()))
             played += 1
+        if rollout.episode != shown_episode:
+            verdict()
     finally:
         if own:
             server.stop()

@@ -1,6 +1,8 @@
 """The Replay tab: a run's scene and a recorded episode in 3D, optionally a second run beside
 it on the same clock; play, pause, step, loop, speed, a frame scrubber, a camera that follows
-the character, and the path it actually walked drawn beside the planned one.
+the character, the path it actually walked drawn beside the planned one, and each frame's task
+markers (`detach.eval.task_markers`: Follow path done and ahead, targets, subtask and time,
+the verdict on the closing frame).
 
 Switching to a run without episodes clears the character, its label, its trail and the
 frame controls: nothing of the previous run's episode stays on screen.
@@ -72,8 +74,11 @@ def replay_panel(s: Session) -> Panel:
     def draw(slot: str, ep: Episode, i: int) -> None:
         scene = view.a if slot == "a" else view.b
         skill = ep.skill[i]
-        text = (("B · " if slot == "b" else "") + f"subtask {ep.subtask[i]}: {skill}") if skill else ""
+        prefix = "B · " if slot == "b" else ""
+        markers = scene.frame_markers(ep, i, prefix)  # their caption names the subtask and time
+        text = "" if markers else (prefix + f"subtask {ep.subtask[i]}: {skill}") if skill else ""
         root = scene.set_frame(ep, i, text)
+        scene.set_markers(markers)
         if slot == "a" and follow.value:
             view.follow(root)
 

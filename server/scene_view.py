@@ -15,7 +15,10 @@ from typing import Any, Callable, ContextManager, Sequence
 
 import numpy as np
 
+from detach.eval.task_markers import Marker, Text, scene_targets, task_markers
+from detach.run_contract import SceneTarget
 from server.episode import Episode
+from server.marker_view import MarkerView
 from server.scene_geometry import (
     DYNAMIC_COLOR, STATIC_COLORS, TRAJECTORY_COLOR, Instances, as_list, find_mesh,
     humanoid_instances, instance_poses, load_mesh, node_name, scene_bounds, target_color,
@@ -58,6 +61,10 @@ class RunScene:
         self._batches: dict[str, tuple[Instances, Any]] = {}
         self._label: Any = None
         self._trail: Any = None
+        self._targets: list[Any] = []
+        self.targets: list[SceneTarget] = []
+        """The /scene message's well-formed targets (the task markers draw them)."""
+        self.markers = MarkerView(scene_api, f"/{slot}/task")
         self._index_cache: tuple[tuple[str, ...], dict[str, np.ndarray]] | None = None
         self._character_shown = False
         self.bounds: tuple[np.ndarray, np.ndarray] = scene_bounds({})
@@ -67,6 +74,7 @@ class RunScene:
 
     # --- the scene ----------------------------------------------------------------------
     def clear(self) -> None:
+        self.markers.clear()
         for h in [*self._handles, self._trail, self._root]:
             if h is None:
                 continue
@@ -76,6 +84,7 @@ class RunScene:
                 pass
         self._root, self._handles, self._objects, self._batches = None, [], {}, {}
         self._label, self._trail, self._index_cache = None, None, None
+        self._targets, self.targets = [], []
         self._character_shown = self.shown = False
 
     def show(self, scene: dict[str, Any] | None, run_dir: Path, offset: np.ndarray) -> list[str]:
@@ -119,6 +128,7 @@ class RunScene:
                 self._guard(f"trajectory {key}", self._add_trajectory, str(key), way)
             for i, tgt in enumerate(as_list(scene.get("targets"))):
                 self._guard(f"target {i}", self._add_target, i, tgt)
+            self.targets = self._guard("targets", scene_targets, scene) or []
             if self._guard("body_geoms", self._add_character, scene) is None:
                 self._add_character({"bodies": scene.get("bodies") or []})  # spheres at bodies
 
@@ -139,9 +149,11 @@ class RunScene:
                 thickness=0.04))
 
     def _add_target(self, i: int, tgt: dict[str, Any]) -> None:
-        self._handles.append(self.scene.add_icosphere(
+        handle = self.scene.add_icosphere(
             f"/{self.slot}/targets/{i}", radius=0.1, subdivisions=2, color=target_color(tgt),
-            position=tuple(float(v) for v in tgt.get("pos", (0, 0, 0)))))
+            position=tuple(float(v) for v in tgt.get("pos", (0, 0, 0))))
+        self._handles.append(handle)
+        self._targets.append(handle)
 
     def _add_object(self, i: int, obj: dict[str, Any], run_dir: Path) -> None:
         name = str(obj.get("name", f"object_{i}"))
@@ -217,8 +229,29 @@ class RunScene:
         self._character_shown = True
         return pos[0] + self.offset
 
+    def set_markers(self, markers: list[Marker]) -> None:
+        """Draw a frame's task markers (`detach.eval.task_markers`); while they are shown they
+        draw the scene's targets, so the plain target spheres are hidden."""
+        with self.atomic():
+            self.markers.show(markers)
+            for h in self._targets:
+                if h.visible != (not markers):
+                    h.visible = not markers
+
+    def frame_markers(self, episode: Episode, i: int, caption_prefix: str = "") -> list[Marker]:
+        """The task markers of frame `i` of `episode` (none for a log without task data)."""
+        i = int(np.clip(i, 0, episode.num_frames - 1))
+        if i >= len(episode.task):
+            return []
+        markers = task_markers(self.targets, episode.task[i])
+        if caption_prefix:
+            markers = [Text(m.name, caption_prefix + m.text, m.pos, m.color) if isinstance(m, Text) else m
+                       for m in markers]
+        return markers
+
     def hide_character(self) -> None:
         """No episode to show: nothing of the previous one may stay on screen."""
+        self.set_markers([])
         with self.atomic():
             for _ins, handle in self._batches.values():
                 handle.visible = False

@@ -9,7 +9,7 @@ Single-skill tasks are one-subtask plans.
 
 What an evaluator reads: `extras["episode_progress"]` at every step where some episode ended
 (`PlanTracker.progress()` of the finished episodes plus each termination, `length`), and
-`snapshot(i)`, env i's bodies and subtask now. Sizes of the observation groups: `obs_spec`.
+`snapshot(i)`, env i's bodies, subtask, target and path now. Sizes of the observation groups: `obs_spec`.
 """
 
 from __future__ import annotations
@@ -56,6 +56,12 @@ class EnvSnapshot:
     """Dynamic objects: {"name", "pos", "quat"}."""
     subtask: int
     skill: str
+    target: np.ndarray | None = None
+    """[3] the current subtask's target (what the task markers draw)."""
+    path: np.ndarray | None = None
+    """[K, 2] the XY path of the current subtask where its skill follows one (Follow), else None."""
+    path_index: float | None = None
+    """Where the moving reference point is on `path` (fractional vertex index)."""
 
 
 class LHEnv(VecEnv):
@@ -160,6 +166,7 @@ class LHEnv(VecEnv):
             self._reset_envs(ids)
         if len(ids) or may_any(self.tracker.advanced):  # targets changed since the reward: recompute them
             ctx = self._context(self._read() if len(ids) else ctx.state)
+        self._ctx = ctx
         self.obs = self._observe(ctx, dones)
         return self.obs, rew, dones, extras
 
@@ -305,7 +312,8 @@ class LHEnv(VecEnv):
         ids = torch.arange(self.num_envs, device=self.device) if ids is None else ids
         self._reset_envs(ids)
         every = torch.ones_like(ids, dtype=torch.bool)
-        self.obs = self._observe(self._context(self._read()), rows_at(self.num_envs, ids, every, False))
+        self._ctx = self._context(self._read())
+        self.obs = self._observe(self._ctx, rows_at(self.num_envs, ids, every, False))
         return self.obs
 
     def set_reference_sampler(self, fn: ReferenceSampler) -> None:
@@ -315,13 +323,30 @@ class LHEnv(VecEnv):
 
     # ---------------------------------------------------------------------------- views
     def snapshot(self, i: int = 0) -> EnvSnapshot:
-        """Env i's character bodies, dynamic objects and current subtask."""
+        """Env i's character bodies, dynamic objects, current subtask, its target and (Follow)
+        its path with the reference point's place on it."""
         st = self.state
         objects = [{"name": self.scene.objects[o].name, "pos": st.obj_pos[i, o].tolist(),
                     "quat": st.obj_quat[i, o].tolist()} for o in self.scene.dynamic]
         sub = int(self.tracker.subtask[i])
+        ctx = getattr(self, "_ctx", None)
+        target = None if ctx is None else ctx.target[i].detach().cpu().numpy().astype(np.float64)
+        path = index = None
+        if bool(self.tracker.follows_path[int(self.tracker.tensors.skill[min(sub, len(self.plan) - 1)])]):
+            path, index = self._path_of(i)
         return EnvSnapshot(BODY_NAMES, st.body_pos[i].cpu().numpy(), st.body_quat[i].cpu().numpy(), objects,
-                           sub, self.plan[min(sub, len(self.plan) - 1)].skill)
+                           sub, self.plan[min(sub, len(self.plan) - 1)].skill, target, path, index)
+
+    def _path_of(self, i: int) -> tuple[np.ndarray, float]:
+        """Env i's reference path without its padding (repeats of the last vertex) and where
+        its reference point is now, as a fractional vertex index."""
+        traj = self.services.trajectory
+        verts = traj.verts[i].detach().cpu().numpy().astype(np.float64)
+        moved = np.any(np.abs(verts - verts[-1]) > 1e-9, axis=1)
+        last = int(np.nonzero(moved)[0][-1]) + 1 if moved.any() else 0
+        verts = verts[: last + 1]
+        t = float(self.steps[i] - traj.t0[i]) * self.dt
+        return verts, float(np.clip(t / float(traj.vertex_dt[i]), 0.0, len(verts) - 1))
 
 
 def _compiled(fn):

@@ -8,7 +8,11 @@ panel draws the log without extensions:
   dynamic object (a box to carry) hangs on its own /tf frame, so it moves with the episode;
 - the planned trajectories as line strips, the subtasks' targets as spheres;
 - one entity per body of the character (`character/<body>`), frame-locked to the body's /tf
-  frame, built from its collision primitives (capsules as cylinders with sphere ends).
+  frame, built from its collision primitives (capsules as cylinders with sphere ends);
+- on its own topic /foxglove/task, each recorded frame's task markers
+  (`detach.eval.task_markers`: the Follow path done and ahead, the targets, the subtask and
+  time, the verdict at the end) as `task/...` entities; each message deletes the previous
+  frame's and holds the whole set, so a seek in Foxglove shows the right frame's markers.
 """
 
 from __future__ import annotations
@@ -17,9 +21,11 @@ import base64
 from pathlib import Path
 from typing import Any
 
+from detach.eval.task_markers import Disc, Marker, Polyline, Sphere, Text
 from detach.run_contract import SceneMessage
 
 SCENE_UPDATE_TOPIC = "/foxglove/scene"
+TASK_UPDATE_TOPIC = "/foxglove/task"
 MAX_EMBEDDED_MESH_BYTES = 8 * 1024 * 1024
 """Larger meshes are drawn as their bounding box (a log stays small enough to open)."""
 
@@ -47,6 +53,9 @@ FOXGLOVE_SCENE_UPDATE = {
             "lines": _ARRAY({"type": "object", "properties": {
                 "type": {"type": "integer"}, "pose": _POSE, "thickness": {"type": "number"},
                 "scale_invariant": {"type": "boolean"}, "points": _ARRAY(_VEC3), "color": _COLOR}}),
+            "texts": _ARRAY({"type": "object", "properties": {
+                "pose": _POSE, "billboard": {"type": "boolean"}, "font_size": {"type": "number"},
+                "scale_invariant": {"type": "boolean"}, "color": _COLOR, "text": {"type": "string"}}}),
             "models": _ARRAY({"type": "object", "properties": {
                 "pose": _POSE, "scale": _VEC3, "color": _COLOR, "override_color": {"type": "boolean"},
                 "url": {"type": "string"}, "media_type": {"type": "string"},
@@ -55,6 +64,8 @@ FOXGLOVE_SCENE_UPDATE = {
     },
 }
 LINE_STRIP = 0
+DELETE_ALL = 1
+"""SceneEntityDeletion type: every entity of the topic."""
 
 
 def _stamp(time_ns: int) -> dict[str, int]:
@@ -147,3 +158,29 @@ def scene_update(scene: SceneMessage, assets_root: Path, time_ns: int) -> dict[s
         geoms = by_body.get(body) or [{"type": "sphere", "size": [0.05], "pos": [0, 0, 0], "quat": [1, 0, 0, 0]}]
         entities.append(_entity(f"character/{body}", body, time_ns, **_body_shapes(geoms)))
     return {"deletions": [], "entities": entities}
+
+
+def task_update(markers: list[Marker], time_ns: int) -> dict[str, Any]:
+    """One frame's task markers as a `foxglove.SceneUpdate` (`task/<name>` entities in the world
+    frame) that first deletes the previous frame's."""
+    entities = []
+    for m in markers:
+        if isinstance(m, Polyline):
+            shapes: dict[str, Any] = {"lines": [{
+                "type": LINE_STRIP, "pose": _pose(), "thickness": float(m.width), "scale_invariant": False,
+                "points": [dict(zip("xyz", map(float, p))) for p in m.points], "color": _color(m.color)}]}
+        elif isinstance(m, Sphere):
+            d = 2 * float(m.radius)
+            shapes = {"spheres": [{"pose": _pose(m.pos), "size": {"x": d, "y": d, "z": d},
+                                   "color": _color(m.color, m.opacity)}]}
+        elif isinstance(m, Disc):
+            d = 2 * float(m.radius)
+            shapes = {"cylinders": [{"pose": _pose((m.pos[0], m.pos[1], 0.01)), "size": {"x": d, "y": d, "z": 0.01},
+                                     "bottom_scale": 1.0, "top_scale": 1.0, "color": _color(m.color, m.opacity)}]}
+        elif isinstance(m, Text):
+            shapes = {"texts": [{"pose": _pose(m.pos), "billboard": True, "font_size": 14.0, "scale_invariant": True,
+                                 "color": _color(m.color), "text": m.text}]}
+        else:
+            continue
+        entities.append(_entity(f"task/{m.name}", "world", time_ns, **shapes))
+    return {"deletions": [{"timestamp": _stamp(time_ns), "type": DELETE_ALL, "id": ""}], "entities": entities}

@@ -2,8 +2,9 @@
 
 Topics and message types: `detach.run_contract` (/metrics `MetricsMessage`, /scene
 `SceneMessage`, /episode/bodies `EpisodeFrame`), plus for Foxglove /tf with the same body (and
-dynamic object) poses as `foxglove.FrameTransforms` and /foxglove/scene with the scene and the
-character as `foxglove.SceneUpdate` entities (`detach.runs.foxglove`). Chunks are flushed after
+dynamic object) poses as `foxglove.FrameTransforms`, /foxglove/scene with the scene and the
+character as `foxglove.SceneUpdate` entities and /foxglove/task with each frame's task markers
+(`detach.runs.foxglove`, `detach.eval.task_markers`). Chunks are flushed after
 every metrics message and every `flush_every` frames, so a crashed run's log reads up to its
 last flush.
 
@@ -26,7 +27,8 @@ from typing import Any, BinaryIO, Iterator, Sequence
 from mcap.reader import NonSeekingReader
 from mcap.writer import CompressionType, Writer
 
-from detach.runs.foxglove import FOXGLOVE_SCENE_UPDATE, SCENE_UPDATE_TOPIC, scene_update
+from detach.eval.task_markers import PathMemo, task_markers, task_state
+from detach.runs.foxglove import FOXGLOVE_SCENE_UPDATE, SCENE_UPDATE_TOPIC, TASK_UPDATE_TOPIC, scene_update, task_update
 from detach.run_contract import (
     EPISODE_TOPIC, MCAP_SCHEMAS, METRICS_TOPIC, SCENE_TOPIC, TEMP_SUFFIX, TF_TOPIC, EpisodeFrame, MetricsMessage,
     SceneMessage,
@@ -77,6 +79,11 @@ class RunLogWriter:
                                                   FOXGLOVE_FRAME_TRANSFORMS)
         self._channels[SCENE_UPDATE_TOPIC] = self._register(SCENE_UPDATE_TOPIC, "foxglove.SceneUpdate",
                                                             FOXGLOVE_SCENE_UPDATE)
+        self._channels[TASK_UPDATE_TOPIC] = self._register(TASK_UPDATE_TOPIC, "foxglove.SceneUpdate",
+                                                           FOXGLOVE_SCENE_UPDATE)
+        self._targets: list = []
+        """The last logged scene's targets (the task markers of every frame draw them)."""
+        self._paths = PathMemo()
         self._frames_since_flush = 0
         self.flush_every = flush_every
         self._sequence = 0
@@ -132,6 +139,7 @@ class RunLogWriter:
         from scene_builder.assets import default_assets_root
 
         now = time.time_ns()
+        self._targets = list(scene.targets)
         self.write(SCENE_TOPIC, scene.to_json(), now)
         self.write(SCENE_UPDATE_TOPIC, scene_update(scene, self.assets_root or default_assets_root(), now), now)
         self._writer.flush()
@@ -152,7 +160,7 @@ class RunLogWriter:
 
     def log_frame(self, frame: EpisodeFrame) -> None:
         """One /episode/bodies frame plus its foxglove.FrameTransforms twin on /tf (bodies and
-        dynamic objects)."""
+        dynamic objects) and its task markers on /foxglove/task."""
         time_ns = self.frame_time_ns(frame)
         self._timeline_end = max(self._timeline_end, time_ns)
         data = frame.to_json()
@@ -165,6 +173,11 @@ class RunLogWriter:
              "translation": {"x": p[0], "y": p[1], "z": p[2]},
              "rotation": {"x": q[1], "y": q[2], "z": q[3], "w": q[0]}}
             for name, p, q in poses]}, time_ns)
+        key = (int(frame.episode), int(frame.trial))
+        state = task_state(data, data["pos"][0] if data["pos"] else (0.0, 0.0, 0.0), self._paths.update(key, data))
+        self.write(TASK_UPDATE_TOPIC, task_update(task_markers(self._targets, state), time_ns), time_ns)
+        if frame.outcome:
+            self._paths.forget(key)
         self._frames_since_flush += 1
         if self._frames_since_flush >= self.flush_every:
             self.flush()

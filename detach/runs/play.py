@@ -1,16 +1,21 @@
 """`detach-run play` and `--video`: a trained policy driving one env, step by step.
 
 `PolicyRollout` builds the run's env (one world, evaluation settings, the run's task or
-another) and its policy from a checkpoint; each `step()` advances one control step and
-returns the frame to draw. `record_video` renders episodes offscreen to an mp4
-(`detach.runs.video`); the live viewer (`server.play_view`) draws the same frames in viser.
+another) and its policy from a checkpoint; each `step()` advances one control step, and
+`task_state()` says what the task markers (`detach.eval.task_markers`: path, targets,
+subtask and time, the verdict at the end) are drawn from. `record_video` renders episodes
+offscreen to an mp4 with those markers (`detach.runs.video`), holding each episode's last
+frame with its verdict for a second; the live viewer (`server.play_view`) draws the same
+frames and markers in viser.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Iterator
 
+from detach.eval.task_markers import Marker, TaskState, task_markers
 from detach.runs.folder import RunFolder
 from detach.runs.video import FollowRenderer, VideoWriter, choose_gl
 
@@ -43,18 +48,43 @@ class PolicyRollout:
         self.dt = float(self.env.dt)
         self.obs = self.env.get_observations()
         self.episode, self.frame = 0, 0
+        self.last_outcome: tuple[bool, tuple[float, ...]] | None = None
+        """(success, each subtask's score) of the episode that ended last."""
         self._torch = torch
 
     def step(self) -> bool:
         """One control step of the policy; True when an episode ended (the env resets itself)."""
+        from detach.eval.episodes import trial_outcome
+
         with self._torch.inference_mode():
-            self.obs, _rew, dones, _extras = self.env.step(self.actor(self.obs))
+            self.obs, _rew, dones, extras = self.env.step(self.actor(self.obs))
         done = bool(dones[0])
         if done:
+            progress = extras.get("episode_progress")
+            if progress is not None:
+                outcome = trial_outcome(progress, 0, self.dt)
+                self.last_outcome = (outcome.completed, tuple(outcome.scores))
             self.episode, self.frame = self.episode + 1, 0
         else:
             self.frame += 1
         return done
+
+    def task_state(self) -> TaskState:
+        """What the task markers of the current frame are drawn from."""
+        snap = self.snapshot()
+        return TaskState(self.frame * self.dt, snap.subtask, snap.skill, snap.body_pos[0], snap.target, snap.path,
+                         snap.path_index)
+
+    def markers(self, state: TaskState | None = None) -> list[Marker]:
+        """The task markers of `state` (default: the current frame)."""
+        return task_markers(self.scene.targets, state if state is not None else self.task_state())
+
+    def verdict(self, state: TaskState) -> TaskState:
+        """`state` (the ended episode's last frame) with the episode's outcome."""
+        if self.last_outcome is None:
+            return state
+        ok, scores = self.last_outcome
+        return dataclasses.replace(state, outcome="success" if ok else "failure", scores=scores)
 
     def snapshot(self):
         """Bodies, objects and current subtask of the env (`detach.envs.lh_env.EnvSnapshot`)."""
@@ -74,18 +104,34 @@ class PolicyRollout:
             n += 1
 
 
-def record_video(rollout: PolicyRollout, path: Path, episodes: int = 1, steps: int | None = None,
-                 size: tuple[int, int] = (640, 480)) -> int:
+VERDICT_HOLD_S = 1.0
+"""How long the video holds an episode's last frame with its success or failure mark."""
+
+
+def record_video(rollout: PolicyRollout, path: Path, episodes: int | None = 1, steps: int | None = None,
+                 size: tuple[int, int] = (640, 480), markers: bool = True) -> int:
     """Render the rollout's episodes (camera tracking the character's root) to an mp4 at the
-    control rate; returns the number of frames written."""
+    control rate, with the task markers unless `markers` is False; each episode's end is its
+    last frame held `VERDICT_HOLD_S` with the verdict. Returns the number of frames written."""
     width, height = size
     root = int(rollout.env.scene.body_ids[0])
     renderer = FollowRenderer(rollout.env.model, width, height, root)
+    hold = max(1, round(VERDICT_HOLD_S / rollout.dt))
     try:
         with VideoWriter(path, 1.0 / rollout.dt, width, height) as video:
-            for _ in rollout.steps(episodes, steps):
-                video.add(renderer.render(rollout.data()))
-            video.add(renderer.render(rollout.data()))
+            ended, n = False, 0
+            while (episodes is None or rollout.episode < episodes) and (steps is None or n < steps):
+                state = rollout.task_state() if markers else None
+                video.add(renderer.render(rollout.data(), rollout.markers(state) if state else ()))
+                ended = rollout.step()
+                n += 1
+                if ended:
+                    last = renderer.render_again(rollout.markers(rollout.verdict(state)) if state else ())
+                    for _ in range(hold):
+                        video.add(last)
+            if not ended:
+                state = rollout.task_state() if markers else None
+                video.add(renderer.render(rollout.data(), rollout.markers(state) if state else ()))
             return video.frames
     finally:
         renderer.close()

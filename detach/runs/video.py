@@ -105,10 +105,23 @@ class FollowRenderer:
         self.camera.type = mujoco.mjtCamera.mjCAMERA_TRACKING
         self.camera.trackbodyid = int(body)
         self.camera.distance, self.camera.azimuth, self.camera.elevation = distance, azimuth, elevation
+        self._scene_geoms = 0
 
-    def render(self, data: Any) -> Any:
+    def render(self, data: Any, markers: Sequence[Any] = ()) -> Any:
+        """One RGB frame of `data`, with the task markers (`detach.eval.task_markers`) drawn
+        into the scene and their text as a caption."""
         self.renderer.update_scene(data, camera=self.camera)
-        return self.renderer.render()
+        self._scene_geoms = self.renderer.scene.ngeom
+        return self.render_again(markers)
+
+    def render_again(self, markers: Sequence[Any] = ()) -> Any:
+        """The last rendered state again with other markers (the verdict at an episode's end,
+        after the env has already reset)."""
+        from detach.runs.marker_render import add_marker_geoms, draw_captions
+
+        self.renderer.scene.ngeom = self._scene_geoms
+        add_marker_geoms(self.renderer.scene, markers)
+        return draw_captions(self.renderer.render(), markers)
 
     def close(self) -> None:
         self.renderer.close()

@@ -324,7 +324,7 @@ class DetachRunner(OnPolicyRunner):
                     if check:
                         find_non_finite(it, step, observations=obs, rewards=rewards, dones=dones.float())
                     if self.episode_recorder is not None:
-                        self.episode_recorder.after_step(self.env, dones)
+                        self.episode_recorder.after_step(self.env, dones, extras)
                     obs, rewards, dones = obs.to(self.device), rewards.to(self.device), dones.to(self.device)
                     self.alg.process_env_step(obs, rewards, dones, extras)
                     reward_sum += rewards.reshape(-1)

@@ -7,7 +7,10 @@ Runs (with one run's details and a config diff), Replay (a second run beside the
 walked path), Curves (the runs compared, wide view), Tables (one row per run and the paper's
 numbers) and Launch.
 
-    python docs/dashboard/make_screenshots.py [--runs DIR] [--out docs/dashboard]
+    python docs/dashboard/make_screenshots.py [--runs DIR] [--out docs/dashboard] [--only replay,runs]
+
+`--runs DIR` names a runs folder to use, or where to train the tiny runs when it does not exist
+yet; `--only` keeps the named screenshots and leaves the other files as they are.
 
 Needs Debian's chromium (/usr/bin/chromium) and playwright (the test extra). Training and
 evaluating the runs takes 5-20 minutes on a 2-core machine (LH3 episodes are long).
@@ -61,8 +64,15 @@ def select(page, label: str, option: str) -> None:
     page.get_by_role("option", name=option, exact=True).click(force=True)
 
 
-def shoot(url: str, runs: list[str], out: Path) -> None:
+SHOTS = ("runs", "replay", "curves", "tables", "launch")
+
+
+def shoot(url: str, runs: list[str], out: Path, only: tuple[str, ...] = SHOTS) -> None:
     from playwright.sync_api import Error, sync_playwright
+
+    def save(page, name: str) -> None:
+        if name in only:
+            page.screenshot(path=str(out / f"{name}.png"))
 
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=ARGS)
@@ -81,47 +91,58 @@ def shoot(url: str, runs: list[str], out: Path) -> None:
         select(page, "Diff with", runs[0])
         page.mouse.move(5, 5)
         time.sleep(3)
-        page.screenshot(path=str(out / "runs.png"))
+        save(page, "runs")
 
         page.get_by_role("tab", name="Replay").first.click(force=True)
         select(page, "Run", runs[-1])
         select(page, "Beside it", runs[0])
         page.mouse.move(5, 5)
         time.sleep(6)
-        page.screenshot(path=str(out / "replay.png"))
+        page.get_by_role("button", name="Pause").first.click(force=True)
+        frame = page.get_by_role("slider").nth(1)  # Speed, then Frame
+        frame.focus()
+        frame.press("End")  # the closing frame: the walked path, the task markers and the verdict
+        page.mouse.move(5, 5)
+        time.sleep(3)
+        save(page, "replay")
 
         page.get_by_role("tab", name="Curves").first.click(force=True)
         page.get_by_label("Wide view").filter(visible=True).check(force=True)
         page.mouse.move(5, 5)
         time.sleep(4)
-        page.screenshot(path=str(out / "curves.png"))
+        save(page, "curves")
 
         page.get_by_role("tab", name="Tables").first.click(force=True)  # still wide
         page.get_by_label("One row per run").check(force=True)
         page.mouse.move(5, 5)
         time.sleep(4)
-        page.screenshot(path=str(out / "tables.png"))
+        save(page, "tables")
         page.get_by_label("Wide view").filter(visible=True).uncheck(force=True)
 
         page.get_by_role("tab", name="Launch").first.click(force=True)
         time.sleep(2)
-        page.screenshot(path=str(out / "launch.png"))
+        save(page, "launch")
         browser.close()
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--runs", type=Path, help="an existing runs folder (default: train three)")
+    ap.add_argument("--runs", type=Path, help="a runs folder, trained into when it does not exist "
+                    "(default: a temporary one)")
     ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parent)
+    ap.add_argument("--only", default=",".join(SHOTS), help=f"screenshots to write (default: {','.join(SHOTS)})")
     args = ap.parse_args()
+    only = tuple(s for s in args.only.split(",") if s)
+    if not set(only) <= set(SHOTS):
+        ap.error(f"--only: choose among {', '.join(SHOTS)}")
     runs_dir = args.runs
-    if runs_dir is None:
-        runs_dir = Path(tempfile.mkdtemp(prefix="dashboard_shots_")) / "runs"
+    if runs_dir is None or not runs_dir.exists():
+        runs_dir = runs_dir or Path(tempfile.mkdtemp(prefix="dashboard_shots_")) / "runs"
         train_runs(runs_dir)
     names = sorted(p.name for p in runs_dir.iterdir() if (p / "config.yaml").exists())
     proc, url = start_dashboard(runs_dir)
     try:
-        shoot(url, names, args.out)
+        shoot(url, names, args.out, only)
     finally:
         proc.terminate()
         proc.wait(timeout=20)
