@@ -1,7 +1,7 @@
 """One PPO iteration split into its parts, for every model kind and character, side by side.
 
     python benchmarks/bench_iteration_split.py [--models mlp detach tokenhsi cml]
-        [--characters puppet humanoid] [--before detach] [--reps 3]
+        [--characters puppet humanoid] [--reps 3] [overrides ...]
 
 Follow task, `sim.num_envs` x `train.num_steps_per_env` (64 x 32, the training defaults), one
 torch thread. Rollout: the env's step, the policy's inference (`alg.act`: actor and critic),
@@ -9,9 +9,7 @@ the AMP discriminator's style reward, the rest (storage, GAE). Update: PPO's epo
 (`num_learning_epochs` x `num_mini_batches`), the discriminator's updates, DETACH's auxiliary
 losses (their own pass over the rollout). DETACH is in its stage 2 (fusion), as most of a run.
 
-`--before M` adds a variant `M-before` for model M: the same configuration timed with the
-code state before issue 60's update changes (`legacy_update`), so before and after are
-measured in one process. Variants are timed round-robin, one iteration each per round; the
+Variants are timed round-robin, one iteration each per round; the
 figures are medians over `--reps` rounds. Both wall seconds and the process's CPU seconds are
 printed: on a shared machine the CPU seconds are the steadier measure of the work done.
 """
@@ -29,8 +27,6 @@ from typing import Callable, Iterator
 import torch
 
 from detach.config import resolve
-from detach.models import rsl_rl_models
-from detach.models.layout import HISTORY_GROUPS, ObsLayout
 from detach.train.setup import build_runner
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -61,39 +57,14 @@ class Clock:
         return wrapper
 
 
-@contextmanager
-def legacy_update() -> Iterator[None]:
-    """The code before issue 60: history groups as strided views of the normalised input, and
-    a shared-trunk critic normalising every group of its set (the actor's too, unused)."""
-    split = ObsLayout.split
-
-    def strided_split(self: ObsLayout, x: torch.Tensor) -> dict[str, torch.Tensor]:
-        out = {}
-        for g, part in zip(self.groups, torch.split(x, list(self.dims), dim=-1)):
-            if g in HISTORY_GROUPS:
-                t, d = self.history_shape(g)
-                part = part.reshape(*part.shape[:-1], t, d)
-            out[g] = part
-        return out
-
-    model = rsl_rl_models.StructuredModel
-    head = model.normalized_head_groups
-    ObsLayout.split = strided_split
-    model.normalized_head_groups = lambda self, obs: self.normalized_groups(obs)
-    try:
-        yield
-    finally:
-        ObsLayout.split = split
-        model.normalized_head_groups = head
-
-
 class Variant:
     """One model on one character, its runner built and warmed up, its parts instrumented."""
 
-    def __init__(self, model: str, character: str, before: bool, overrides: list[str]) -> None:
-        self.name = f"{model}-before" if before else model
+    def __init__(self, model: str, character: str, overrides: list[str]) -> None:
+        self.name = model
         self.character = character
-        self.context = legacy_update if before else nullcontext
+        self.context = nullcontext
+        """A code state to build and time the variant in (e.g. one patching a change back out)."""
         cfg = resolve(ROOT / "configs/tasks/follow.yaml", model,
                       [f"env.character={character}", "train.stages.pretrain=1",
                        "train.stages.fusion=1000", "train.torch_threads=1", *overrides])
@@ -150,8 +121,6 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--models", nargs="+", default=["mlp", "detach", "tokenhsi", "cml"])
     ap.add_argument("--characters", nargs="+", default=["puppet", "humanoid"])
-    ap.add_argument("--before", nargs="*", default=["detach"],
-                    help="models also timed with the code before issue 60 (`M-before`)")
     ap.add_argument("--reps", type=int, default=3)
     ap.add_argument("overrides", nargs="*", help="config overrides for every variant, e.g. sim.num_envs=64")
     args = ap.parse_args()
@@ -159,9 +128,7 @@ def main() -> None:
     variants = []
     for character in args.characters:
         for model in args.models:
-            variants.append(Variant(model, character, False, args.overrides))
-            if model in args.before:
-                variants.append(Variant(model, character, True, args.overrides))
+            variants.append(Variant(model, character, args.overrides))
     wall: dict[tuple[str, str], list[dict[str, float]]] = {(v.character, v.name): [] for v in variants}
     cpu: dict[tuple[str, str], list[dict[str, float]]] = {(v.character, v.name): [] for v in variants}
     for rep in range(args.reps):

@@ -85,22 +85,14 @@ class ObsLayout:
         return start + torch.arange(self.dims[i])[:, None]
 
     def split(self, x: torch.Tensor) -> dict[str, torch.Tensor]:
-        """[N, sum(dims)] -> {group: [N, T, d] for histories, [N, D] otherwise}.
-
-        Histories are copied to contiguous memory: as strided views of the concatenated input,
-        a Linear on [N, T, d] ran as a batched matmul with the weight broadcast per sample and
-        the GRU copied them per step (benchmarks/bench_ppo_iteration.py, issue 60)."""
+        """[N, sum(dims)] -> {group: [N, T, d] for histories, [N, D] otherwise}."""
         out: dict[str, torch.Tensor] = {}
         for g, part in zip(self.groups, torch.split(x, list(self.dims), dim=-1)):
             if g in HISTORY_GROUPS:
                 t, d = self.history_shape(g)
-                part = part.reshape(*part.shape[:-1], t, d).contiguous()
+                part = part.reshape(*part.shape[:-1], t, d)
             out[g] = part
         return out
-
-    def offset(self, group: str) -> int:
-        """First column of `group` in the concatenated input."""
-        return sum(self.dims[:self.groups.index(group)])
 
 
 def align_time(x: torch.Tensor, steps: int) -> torch.Tensor:

@@ -53,7 +53,7 @@ from typing import Any, ClassVar
 import torch
 import torch.nn as nn
 from rsl_rl.models import MLPModel
-from rsl_rl.modules import EmpiricalNormalization, HiddenState
+from rsl_rl.modules import HiddenState
 from rsl_rl.utils import unpad_trajectories
 from tensordict import TensorDict
 
@@ -171,30 +171,15 @@ class StructuredModel(MLPModel):
         """Concatenate this obs set's groups, normalise, split back by name (histories [N, T, d])."""
         return self.layout.split(super().get_latent(obs))
 
-    def normalized_head_groups(self, obs: TensorDict) -> dict[str, torch.Tensor]:
-        """The normalised `head_groups` alone (a shared-trunk critic's extras). The normaliser
-        is elementwise, so these are exactly the values `normalized_groups` gives them, without
-        normalising the actor's groups too (~5k columns per sample on the humanoid, unused)."""
-        norm = self.obs_normalizer
-        out = {}
-        for g in self.head_groups:
-            x = obs[g]
-            if isinstance(norm, EmpiricalNormalization):
-                cols = slice(self.layout.offset(g), self.layout.offset(g) + self.layout.dim(g))
-                x = (x - norm._mean[:, cols]) / (norm._std[:, cols] + norm.eps)
-            out[g] = x
-        return out
-
     def get_latent(
         self, obs: TensorDict, masks: torch.Tensor | None = None, hidden_state: HiddenState = None
     ) -> torch.Tensor:
+        groups = self.normalized_groups(obs)
         owner = self._trunk_owner
         if owner is None:
-            groups = self.normalized_groups(obs)
             h = self.trunk_latent(obs, groups)
             self._latent_cache = (obs, h)
-        else:  # the trunk reads the actor's groups through the actor's normaliser
-            groups = self.normalized_head_groups(obs)
+        else:
             h = owner.shared_latent(obs)
         if self.head_groups:
             h = torch.cat([h, *(groups[g].flatten(1) for g in self.head_groups)], dim=-1)
