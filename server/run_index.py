@@ -49,6 +49,8 @@ class RunInfo:
     seed: int | None = None
     cell: str | None = None
     """The sweep cell (status.json), e.g. `table1/lh1/detach/s0`."""
+    origin: str | None = None
+    """status.json's run id, written when the run was created: a copied folder shares it."""
     state: str = "unknown"
     iteration: int | None = None
     lh_sr: float | None = None
@@ -211,7 +213,7 @@ class RunReader:
                 s = status.value
                 info.state, info.updated, info.started, info.error = (s.state, s.updated,
                                                                       s.started, s.error)
-                info.iteration, info.cell = s.iteration, s.cell
+                info.iteration, info.cell, info.origin = s.iteration, s.cell, s.run_id
             else:
                 problems.append(status.problem or f"{STATUS_FILE} unreadable")
             problems += self._read_evals(info)
@@ -448,8 +450,18 @@ class RunIndex:
         return [e for _run, e in self.evals_by_run(run_ids)]
 
     def evals_by_run(self, run_ids: list[str] | None = None) -> list[tuple[str, EvalResult]]:
-        """(run id, result) of every parsed eval*.json of the given runs (all if None)."""
+        """(run id, result) of every parsed eval*.json of the given runs (all if None); a
+        folder that shares its status.json run id with one listed before it (a copy, `cp -r
+        RUN RUN.bak`) is left out, so the tables count a run once as `detach-run table` does."""
         with self._lock:
             ids = sorted(self.readers) if run_ids is None else run_ids
-            return [(i, e) for i in ids if i in self.readers
-                    for _name, e in sorted(self.readers[i].evals.items())]
+            seen: set[str] = set()
+            out = []
+            for i in (i for i in ids if i in self.readers):
+                origin = self.infos[i].origin if i in self.infos else None
+                if origin is not None:
+                    if origin in seen:
+                        continue
+                    seen.add(origin)
+                out += [(i, e) for _name, e in sorted(self.readers[i].evals.items())]
+            return out

@@ -262,6 +262,11 @@ def test_a_copied_run_folder_counts_once_with_a_warning(tmp_path: Path,
     assert "copy" in err and run.path.name in err
     assert cli.main(["list", str(tmp_path)]) == 0
     assert f"copy of {run.path.name}" in capsys.readouterr().out
+    from server.run_index import RunIndex
+
+    index = RunIndex(tmp_path)  # the dashboard's tables count the copy once too
+    index.refresh()
+    assert sum(e.trials for _r, e in index.evals_by_run()) == 20
     for folder in (run, other):  # folders of earlier versions have no run id: each is its own run
         status = json.loads(folder.status_path.read_text())
         status.pop("run_id", None)
