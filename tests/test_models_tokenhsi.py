@@ -217,12 +217,12 @@ def test_a_carry_stage_from_follow_starts_with_the_follow_policy_heading_for_the
     the other models' Follow policies walk to the box). With `tokenizer_from: {carry: follow}`
     the carry tokenizer starts as Follow's (path columns folded into the target's: outside a
     path every path point is the target's XY), so the stage starts with the actions the policy
-    takes when told to follow, on the same Carry frame: to the box."""
-    actor, obs, _ = _carry_stage_from_follow(tmp_path / "plain")
+    takes when told to follow, on the same Carry frame: to the box. The shipped model sets it."""
+    actor, obs, _ = _carry_stage_from_follow(tmp_path / "plain", "model.tokenizer_from={}")
     assert bool(obs["task"][:, skill_names().index("carry")].all())
     with torch.no_grad():
         assert not torch.allclose(actor(obs), actor(_told_to_follow(obs)), atol=1e-3)  # the random tokenizer
-    actor, obs, line = _carry_stage_from_follow(tmp_path / "copied", "model.tokenizer_from={carry: follow}")
+    actor, obs, line = _carry_stage_from_follow(tmp_path / "copied")  # configs/models/tokenhsi.yaml
     assert "task tokenizers copied: carry <- follow" in line
     trunk = actor.trunk
     with torch.no_grad():
