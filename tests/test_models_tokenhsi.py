@@ -182,3 +182,56 @@ def test_ppo_on_the_adapter_stage_moves_only_the_adapted_parts(tmp_path: Path) -
     assert int(actor.obs_normalizer.count) == int(base.alg.actor.obs_normalizer.count) > 0
     critic_moved = {k for k, v in critic.state_dict().items() if not torch.equal(v, critic_before[k])}
     assert "obs_normalizer._mean" in critic_moved and any(k.startswith("mlp.") for k in critic_moved)
+
+
+# ------------------------------------------------- a skill the previous stage never ran
+def _carry_stage_from_follow(tmp_path: Path, *overrides: str):
+    """A one-iteration TokenHSI Follow run, then the Carry stage's start from it (the protocol's
+    `train.init_from` with merged statistics): (actor, first Carry observation, log line)."""
+    from detach import cli
+    from detach.runs.folder import find_runs
+    from detach.train.checks import complete_run_config
+    from detach.train.setup import load_initial_weights
+    assert cli.main(["train", str(ROOT / "configs/tasks/follow.yaml"), "--model", "tokenhsi", "--runs",
+                     str(tmp_path), "--no-eval", *TINY, "train.max_iterations=1"]) == 0
+    (run,) = find_runs(tmp_path)
+    cfg = complete_run_config(resolve(ROOT / "configs/tasks/carry.yaml", "tokenhsi",
+                                      [*TINY, f"train.init_from={run.path}", "train.init_normalizers=merge",
+                                       *overrides]))
+    env, runner = build_runner(cfg, None, "cpu", progress=False)
+    line = load_initial_weights(runner, cfg)
+    return runner.alg.actor, env.get_observations(), line
+
+
+def _told_to_follow(obs: TensorDict) -> TensorDict:
+    out = obs.clone()
+    out["task"] = torch.zeros_like(obs["task"])
+    out["task"][:, skill_names().index("follow")] = 1.0
+    return out
+
+
+def test_a_carry_stage_from_follow_starts_with_the_follow_policy_heading_for_the_box(tmp_path: Path) -> None:
+    """Follow trains only the follow tokenizer (the mask hides the others), so a Carry stage
+    started from it read Carry's frame through a random carry tokenizer: the behaviour Follow
+    learned was out of reach (TokenHSI's laptop Carry cell 0.00 before and after training, where
+    the other models' Follow policies walk to the box). With `tokenizer_from: {carry: follow}`
+    the carry tokenizer starts as Follow's (path columns folded into the target's: outside a
+    path every path point is the target's XY), so the stage starts with the actions the policy
+    takes when told to follow, on the same Carry frame: to the box. The shipped model sets it."""
+    actor, obs, _ = _carry_stage_from_follow(tmp_path / "plain", "model.tokenizer_from={}")
+    assert bool(obs["task"][:, skill_names().index("carry")].all())
+    with torch.no_grad():
+        assert not torch.allclose(actor(obs), actor(_told_to_follow(obs)), atol=1e-3)  # the random tokenizer
+    actor, obs, line = _carry_stage_from_follow(tmp_path / "copied")  # configs/models/tokenhsi.yaml
+    assert "task tokenizers copied: carry <- follow" in line
+    trunk = actor.trunk
+    with torch.no_grad():
+        torch.testing.assert_close(actor(obs), actor(_told_to_follow(obs)), atol=1e-4, rtol=1e-4)
+        box = range(trunk.layout.spec.env_dim)[trunk.layout.spec.env_fields()["object"]]
+        box_columns = [c for c, i in enumerate(trunk.carry_index.tolist()) if i in box]
+        assert len(box_columns) == 33 and bool((trunk.task_tokenizers["carry"][0].weight[:, box_columns] == 0).all())
+        # a skill the source ran keeps its own tokenizer (an LH1 stage from a Carry cell)
+        before = {k: v.clone() for k, v in trunk.task_tokenizers["carry"].state_dict().items()}
+        actor.obs_normalizer._mean[0, actor.layout.columns("task")[skill_names().index("carry"), 0]] = 0.3
+        assert actor.start_from_loaded() == []
+        assert all(torch.equal(v, before[k]) for k, v in trunk.task_tokenizers["carry"].state_dict().items())

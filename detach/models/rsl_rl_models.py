@@ -53,7 +53,7 @@ from typing import Any, ClassVar
 import torch
 import torch.nn as nn
 from rsl_rl.models import MLPModel
-from rsl_rl.modules import HiddenState
+from rsl_rl.modules import EmpiricalNormalization, HiddenState
 from rsl_rl.utils import unpad_trajectories
 from tensordict import TensorDict
 
@@ -67,7 +67,7 @@ from detach.models.layout import ObsLayout, no_columns, stack_columns
 from detach.models.losses import combine_aux_losses
 from detach.models.mlp import FlatTrunk, MLPCfg
 from detach.models.tokenhsi import ACTIVE_SKILLS, TokenHSICfg, TokenHSITrunk, TokenHSIValueTrunk
-from detach.skills import canonical_name
+from detach.skills import canonical_name, skill_index
 
 
 class StructuredModel(MLPModel):
@@ -433,6 +433,26 @@ class TokenHSIModel(StructuredModel):
 
     def new_parameter_prefixes(self) -> tuple[str, ...]:
         return () if self.adapter is None else ("adapter.",)
+
+    def start_from_loaded(self) -> list[str]:
+        """After `train.init_from` loaded the source's weights and observation statistics (before
+        they are merged): `tokenizer_from`'s copies, for each skill whose one-hot entry the
+        source's statistics never saw set (mean 0: the source never ran it, so its tokenizer
+        never trained). Returns "skill <- source" for each copy made."""
+        norm = self.obs_normalizer
+        if not self.cfg.tokenizer_from or not isinstance(norm, EmpiricalNormalization) \
+                or self.distribution is None:
+            return []
+        mean, scale = norm._mean.reshape(-1), norm._std.reshape(-1) + norm.eps
+        env = self.layout.columns("env")[:, -1]
+        task = self.layout.columns("task")[:, 0]
+        done = []
+        for skill, source in self.cfg.tokenizer_from.items():
+            if float(mean[task[skill_index(skill)]]) > 0.0:
+                continue  # the source ran it: its own tokenizer is trained
+            self.trunk.copy_task_tokenizer(skill, source, mean[env], scale[env])
+            done.append(f"{canonical_name(skill)} <- {canonical_name(source)}")
+        return done
 
 
 class CMLModel(StructuredModel):

@@ -28,7 +28,7 @@ Adapter stage (`adapt_skills`, TokenHSI's skill adaptation, `detach.models.adapt
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 import torch.nn as nn
@@ -61,6 +61,12 @@ class TokenHSICfg(TrunkModelCfg):
     """Adapter stage: these skills' task tokenizers and the head adapter train, everything else
     of the policy (tokenizers, action token, transformer, head, input normaliser) is frozen
     at the weights of the previous stage (`train.init_from`). Empty = ordinary training."""
+    tokenizer_from: dict[str, str] = field(default_factory=dict)
+    """With `train.init_from`: skill -> trained skill. Each named skill's task tokenizer, if
+    the source run never ran that skill, starts as a copy of the other skill's
+    (`TokenHSITrunk.copy_task_tokenizer`), as TokenHSI's skill adaptation starts a new task's
+    tokenizer from its base task's. Without it a skill the source never ran starts at its
+    random initialisation: the masking hides the trained tokenizers from it. Empty = none."""
 
     def builds_on(self) -> str | None:
         return "adapt_skills" if self.adapt_skills else None
@@ -76,6 +82,12 @@ class TokenHSICfg(TrunkModelCfg):
             return "adapt_skills", f"a skill is listed twice: {list(self.adapt_skills)}"
         if names and self.shared_trunk:
             return "adapt_skills", "the adapter stage freezes the transformer; use it without shared_trunk"
+        try:
+            pairs = [(canonical_name(a), canonical_name(b)) for a, b in self.tokenizer_from.items()]
+        except ValueError as exc:
+            return "tokenizer_from", str(exc)
+        if any(a == b for a, b in pairs):
+            return "tokenizer_from", f"a skill copies its own tokenizer: {dict(self.tokenizer_from)}"
         return None
 
 
@@ -145,6 +157,35 @@ class TokenHSITrunk(nn.Module):
 
     def output_columns(self) -> torch.Tensor:
         return no_columns(self.out_dim)
+
+    @torch.no_grad()
+    def copy_task_tokenizer(self, skill: str, source: str, mean: torch.Tensor, scale: torch.Tensor) -> None:
+        """Make `skill`'s task tokenizer the trained one of `source` (`TokenHSICfg.tokenizer_from`):
+        the parts of the env frame both read keep `source`'s first-layer columns, the parts only
+        `skill` reads start at zero, and `source`'s path columns fold into the target's XY
+        columns: outside path-following subtasks every path point is the target's XY
+        (`detach.envs.observations.env_frame`), so on such a frame `skill`'s token equals the
+        token `source` would give it. `mean` and `scale` [env_dim] are the normaliser's mean and
+        std + eps of the newest env frame's inputs (the tokenizers read (x - mean) / scale)."""
+        fields = self.layout.spec.env_fields()
+        src, dst = (getattr(self, f"{canonical_name(s)}_index").tolist() for s in (source, skill))
+        src_tok, dst_tok = self.task_tokenizers[canonical_name(source)], self.task_tokenizers[canonical_name(skill)]
+        w_src, b_src = src_tok[0].weight, src_tok[0].bias
+        weight, bias = torch.zeros_like(dst_tok[0].weight), b_src.clone()
+        at = {i: c for c, i in enumerate(dst)}
+        target = range(self.layout.spec.env_dim)[fields["target"]]
+        path = set(range(self.layout.spec.env_dim)[fields["path"]])
+        for c, i in enumerate(src):
+            if i in at:
+                weight[:, at[i]] += w_src[:, c]
+            elif i in path and target[0] in at:  # a path point's x or y reads the target's
+                t = target[(i - fields["path"].start) % 2]
+                weight[:, at[t]] += w_src[:, c] * (scale[t] / scale[i])
+                bias += w_src[:, c] * ((mean[t] - mean[i]) / scale[i])
+        dst_tok[0].weight.copy_(weight)
+        dst_tok[0].bias.copy_(bias)
+        for d, s in zip(list(dst_tok)[1:], list(src_tok)[1:]):
+            d.load_state_dict(s.state_dict())
 
     def forward(self, groups: dict[str, torch.Tensor]) -> torch.Tensor:
         if ACTIVE_SKILLS not in groups:

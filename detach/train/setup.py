@@ -220,6 +220,7 @@ def load_initial_weights(runner: DetachRunner, cfg: RunConfig) -> str:
             raise ConfigError(f"train.init_from: {checkpoint} holds model {source_model}, which does not fit "
                               f"this run's model {cfg.model_name} ({cfg.model.kind}): {name} " + "; ".join(problems))
         module.load_state_dict(source, strict=False)
+    copied = getattr(alg.actor, "start_from_loaded", lambda: [])()  # TokenHSI's `tokenizer_from`
     restarted = ""
     if cfg.train.init_normalizers == "restart":
         restarted = f", {restart_normalizers(alg.actor, alg.critic)} observation normalisers restarted"
@@ -231,6 +232,8 @@ def load_initial_weights(runner: DetachRunner, cfg: RunConfig) -> str:
                      f"{cfg.train.init_action_std:g}"
     if cfg.train.init_action_mean:
         restarted += ", " + apply_action_means(alg.actor, cfg.env.character, cfg.train.init_action_mean)
+    if copied:
+        restarted += f", task tokenizers copied: {', '.join(copied)}"
     return f"initialised from {checkpoint} (model {source_model}, iteration {state.get('iter', '?')}{restarted})"
 
 
