@@ -4,6 +4,7 @@ only for a sweep's cells and read only by its tables; each table row names its a
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import re
 import textwrap
@@ -137,6 +138,9 @@ def test_aids_come_from_the_config() -> None:
         "oracle teacher", "oracle-recorded starts", "chosen checkpoint", "added reward terms"]
     assert aids("train.init_action_mean={grasp: 0.1}", "train.critic_warmup_iterations=5") == [
         "set start pose", "critic warm-up"]
+    tokenhsi = resolve(ROOT / "configs/tasks/carry.yaml", "tokenhsi", ["env.character=puppet"])
+    started = dataclasses.replace(tokenhsi, train=dataclasses.replace(tokenhsi.train, init_from="runs/x"))
+    assert run_aids(tokenhsi) == [] and run_aids(started) == ["copied tokenizer"]
 
 
 def test_a_test_offset_that_could_meet_another_set_is_a_one_line_error(

@@ -50,6 +50,8 @@ def run_aids(cfg: RunConfig) -> list[str]:
         aids.append("chosen checkpoint")
     if t.critic_warmup_iterations > 0:
         aids.append("critic warm-up")
+    if t.init_from and getattr(cfg.model, "tokenizer_from", None):
+        aids.append("copied tokenizer")  # TokenHSI's new skill starts from a trained skill's tokenizer
     if t.action_bound_coef > 0 and cfg.model_name not in ("tokenhsi", "tokenhsi_adapt"):
         aids.append("action-bound loss")  # TokenHSI's own loss; an addition to the others
     if _added_terms(cfg) or rewards.done_subtask_reward > 0:
