@@ -627,8 +627,7 @@ def _resume(args: argparse.Namespace) -> int:
     if run.latest_checkpoint() is None:
         return _restart(run, args)
     _refuse_if_alive(run)
-    if args.test_trials is not None and run.status().cell is None:
-        raise ConfigError(TEST_TRIALS_CELLS_ONLY, str(run.path))
+    _check_test_trials(run, args.test_trials)
     cfg = run.config()  # validates the stored config as a user error, not a traceback
     checkpoint = _resume_checkpoint(run, cfg, rename=not args.dry_run)
     new = _extended_config(run, args.overrides, checkpoint) if args.overrides else cfg
@@ -663,6 +662,17 @@ def _take_up(run: RunFolder, args: argparse.Namespace, cfg: RunConfig, new: RunC
         device=args.device, checkpoint=checkpoint, test_offset=args.test_trials))
 
 
+def _check_test_trials(run: RunFolder, test_offset: int | None) -> None:
+    """Refuse --test-trials for a run that is no sweep cell before anything trains."""
+    from detach.eval.trial_sets import TrialSetError
+    from detach.runs.session import trial_set_of
+
+    try:
+        trial_set_of(run, test_offset)
+    except TrialSetError as exc:
+        raise ConfigError(str(exc)) from None
+
+
 def _restart(run: RunFolder, args: argparse.Namespace) -> int:
     """A run killed before its first checkpoint: nothing to resume from, so it trains again
     from iteration 0 with its recorded config (a new log.mcap replaces the old one)."""
@@ -674,8 +684,7 @@ def _restart(run: RunFolder, args: argparse.Namespace) -> int:
         raise ConfigError(f"run has no checkpoint, and its status.json is unreadable ({exc}); "
                           f"expected a run folder that was started", str(run.path)) from None
     _refuse_if_alive(run)
-    if args.test_trials is not None and run.status().cell is None:
-        raise ConfigError(TEST_TRIALS_CELLS_ONLY, str(run.path))
+    _check_test_trials(run, args.test_trials)
     cfg = run.config()
     for text in args.overrides:
         key = text.split("=", 1)[0]
@@ -770,9 +779,9 @@ def _evaluate(args: argparse.Namespace) -> int:
     run, checkpoint = _run_and_checkpoint(args.eval)
     if args.video is not None:
         _choose_gl()  # before anything imports mujoco
-    from detach.eval.trial_sets import TrialSetError
     from detach.runs.session import evaluate_run, smaller_evaluation
 
+    _check_test_trials(run, args.test_trials)
     smaller = None if args.replace else smaller_evaluation(run, eval_task, args.trials, args.test_trials)
     if smaller is not None:
         raise ConfigError(smaller)
@@ -784,11 +793,8 @@ def _evaluate(args: argparse.Namespace) -> int:
     live = run.owner_alive()
     if live:
         print("the run is still training: its log.mcap is left alone (no episode recorded)")
-    try:
-        path = evaluate_run(run, eval_task, checkpoint, args.trials, device=args.device, record=not live,
-                            test_offset=args.test_trials)
-    except TrialSetError as exc:
-        raise ConfigError(str(exc)) from None
+    path = evaluate_run(run, eval_task, checkpoint, args.trials, device=args.device, record=not live,
+                        test_offset=args.test_trials)
     print(f"evaluation written to {path}")
     if args.video is not None:
         from detach.runs.play import play_video

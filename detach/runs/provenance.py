@@ -113,17 +113,23 @@ def write_provenance(run: RunFolder, device: str, resumed: bool = False) -> Path
     return path
 
 
-def code_change_since(run: RunFolder, current: dict[str, Any] | None = None) -> str | None:
-    """A warning when the code about to resume `run` differs from the code that trained its last
-    stretch, else None. A sweep's cell key digests the config, not the code, so a cell
-    interrupted before a reward or physics change resumes under the new code without this.
-    Says nothing when either side is not a git work tree (the versions cannot be compared)."""
+def last_git(run: RunFolder) -> dict[str, Any] | None:
+    """The git state of the run's last start or resume (provenance.json), None where unknown."""
     path = run.path / PROVENANCE_FILE
     try:
         records = read_json(path).get("runs", []) if path.exists() else []
     except (OSError, ValueError, AttributeError):
         return None
-    before = records[-1].get("git") if records and isinstance(records[-1], dict) else None
+    git = records[-1].get("git") if records and isinstance(records[-1], dict) else None
+    return git if isinstance(git, dict) else None
+
+
+def code_change_since(run: RunFolder, current: dict[str, Any] | None = None) -> str | None:
+    """A warning when the code about to resume `run` differs from the code that trained its last
+    stretch, else None. A sweep's cell key digests the config, not the code, so a cell
+    interrupted before a reward or physics change resumes under the new code without this.
+    Says nothing when either side is not a git work tree (the versions cannot be compared)."""
+    before = last_git(run)
     now = current if current is not None else git_state()
     if not before or not now or not before.get("commit") or not now.get("commit"):
         return None

@@ -104,7 +104,7 @@ def eval_path(run: RunFolder, train_cfg: RunConfig, cfg: RunConfig, trial_set: s
     return run.path / eval_file(None if cfg.task_name == train_cfg.task_name else cfg.task_name, trial_set)
 
 
-def _trial_set(run: RunFolder, test_offset: int | None) -> str:
+def trial_set_of(run: RunFolder, test_offset: int | None) -> str:
     """The trial set an evaluation plays: the test set only for a sweep cell (the tables'
     figures), so that no probe or hand-made run can play or overwrite it."""
     if test_offset is None:
@@ -126,7 +126,7 @@ def smaller_evaluation(run: RunFolder, task_path: Path | None, trials: int | Non
     train_cfg = run.config()
     cfg = eval_config(train_cfg, task_path)
     trials = cfg.eval.trials if trials is None else trials
-    path = eval_path(run, train_cfg, cfg, "development" if test_offset is None else "test")
+    path = eval_path(run, train_cfg, cfg, trial_set_of(run, test_offset))
     try:
         old = read_eval(path) if path.exists() else None
     except (OSError, ValueError):
@@ -146,7 +146,7 @@ def evaluate_run(run: RunFolder, task_path: Path | None, checkpoint: Path | None
 
     On the run's own task (and with `record`) the scene and every trial go to log.mcap;
     never pass record=True while another process still writes that log."""
-    trial_set = _trial_set(run, test_offset)
+    trial_set = trial_set_of(run, test_offset)
     train_cfg = run.config()
     cfg = eval_config(train_cfg, task_path)
     checkpoint = checkpoint or run.policy_checkpoint(device or cfg.device)

@@ -12,15 +12,14 @@ cell's own figure is listed beside it).
 from __future__ import annotations
 
 import hashlib
-import json
 import sys
 from pathlib import Path
 from typing import Callable, Sequence
 
 from detach.config import ConfigError
-from detach.run_contract import PROVENANCE_FILE
 from detach.runs.export import export_run
 from detach.runs.folder import RunFolder, atomic_write_json, atomic_write_text, read_eval
+from detach.runs.provenance import last_git
 from detach.runs.session import eval_config, eval_path, evaluate_policy_file
 from detach.runs.sweep import cells, existing_runs, load_sweep
 
@@ -29,12 +28,8 @@ MANIFEST = "manifest.json"
 
 def _commit(run: RunFolder) -> str | None:
     """The commit the run was started (or last resumed) at, from provenance.json."""
-    try:
-        runs = json.loads((run.path / PROVENANCE_FILE).read_text())["runs"]
-        git = runs[-1].get("git") or {}
-        return f"{git.get('commit')}{' (dirty)' if git.get('dirty') else ''}" if git.get("commit") else None
-    except (OSError, ValueError, KeyError, IndexError, TypeError, AttributeError):
-        return None
+    git = last_git(run) or {}
+    return f"{git['commit']}{' (dirty)' if git.get('dirty') else ''}" if git.get("commit") else None
 
 
 def _figures(result_path: Path) -> dict:
