@@ -13,7 +13,7 @@ import pytest
 import torch
 
 from detach.config import resolve
-from detach.envs.lh_env import make_env
+from detach.train.start_library import make_training_env
 
 ROOT = Path(__file__).resolve().parents[1]
 STEPS = 30
@@ -34,7 +34,7 @@ CASES = {
 
 def _training_env(task: str, overrides: list[str]):
     cfg = resolve(ROOT / f"configs/tasks/{task}.yaml", "mlp", overrides, seed=5)
-    return make_env(cfg, num_envs=4, verbose=False)
+    return make_training_env(cfg, num_envs=4, verbose=False)
 
 
 def _feed(h, value) -> None:
