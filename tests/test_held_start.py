@@ -41,7 +41,7 @@ def test_mid_task_starts_hold_the_episodes_box_up_on_its_way_or_stand_at_it_or_n
     at_box = ~held & ~approaching
     # 0.45 hold, 0.15 stand at the box, 0.4 stand some way off
     assert int(held.sum()) >= 10 and int(at_box.sum()) >= 2 and int(approaching.sum()) >= 8
-    assert torch.equal(env.character.held_object()[held], env.dyn_slot[box][held])  # the episode's own box
+    assert torch.equal(env.character.held_object()[held], env.world.dyn_slot[box][held])  # the episode's own box
     assert torch.allclose(st.obj_pos[ar, box, 2][held], rest[held, 2] + LIFT, atol=1e-4)
     assert torch.allclose(st.obj_pos[ar, box][~held], rest[~held], atol=1e-3)  # not held: where it rests
     target = torch.tensor(env.plan[0].fixed_target)
@@ -275,7 +275,7 @@ def test_climb_mid_task_starts_stand_beside_the_object_facing_it() -> None:
     away = st.root_pos[:, :2] - centre
     dist = away.norm(dim=-1)
     diagonal = float(torch.tensor([0.3, 0.3]).norm())
-    assert bool(env.started_mid_task.all())
+    assert bool(env.tracker.started_mid_task.all())
     assert bool((dist >= diagonal + NEAR_RANGE[0] - 1e-3).all())
     assert bool((dist <= diagonal + NEAR_RANGE[1] + 1e-3).all())
     sides = torch.atan2(away[:, 1], away[:, 0])
@@ -303,7 +303,7 @@ def test_sit_mid_task_starts_sit_on_or_stand_near_a_raised_seat() -> None:
                    "sample_target_from=[scene_1]"])
     env = make_env(cfg, num_envs=48, verbose=False)
     st, ctx = env.state, env.context()
-    assert bool(env.started_mid_task.all())
+    assert bool(env.tracker.started_mid_task.all())
     seated = ctx.dist < 0.05
     assert 0.1 < float(seated.float().mean()) < 2 * SEATED_SHARE
     away = st.root_pos[:, :2]                                      # the chair stands at (0, 0)

@@ -20,6 +20,7 @@ from detach.config import resolve
 from detach.envs.lh_env import make_env
 from detach.envs.oracle import Oracle
 from detach.host_sync import deferred_reads, may_any
+from detach.train.start_library import make_training_env
 
 ROOT = Path(__file__).resolve().parents[1]
 READS = {"_local_scalar_dense", "nonzero", "is_nonzero", "masked_select", "_unique", "_unique2",
@@ -83,7 +84,8 @@ class HostCopies(TorchFunctionMode):
 
 def _env(task: str, *overrides: str, eval_mode: bool = True):
     cfg = resolve(ROOT / f"configs/tasks/{task}.yaml", "mlp", ["env.character=puppet", *overrides], seed=3)
-    return make_env(cfg, num_envs=3, eval_mode=eval_mode, verbose=False)
+    return make_env(cfg, num_envs=3, eval_mode=True, verbose=False) if eval_mode else \
+        make_training_env(cfg, num_envs=3, verbose=False)
 
 
 def test_may_any_reads_on_the_cpu_and_not_when_deferred() -> None:
@@ -135,14 +137,14 @@ def test_every_step_reads_the_host_once() -> None:
 def test_resets_add_no_host_read(task: str, overrides: tuple[str, ...]) -> None:
     torch.set_num_threads(1)
     cfg = resolve(ROOT / f"configs/tasks/{task}.yaml", "mlp", [*overrides, "env.init=mixed"], seed=3)
-    env = make_env(cfg, num_envs=4, verbose=False)
+    env = make_training_env(cfg, num_envs=4, verbose=False)
     env.max_episode_length = 30  # end episodes often (the recording of later starts needed the full length)
     gen = torch.Generator().manual_seed(0)
     sites, per_step, ended = _count_reads(env, lambda: torch.rand(4, env.num_actions, generator=gen) * 2 - 1, 70)
     assert sites == {("envs/lh_env.py", "step")} and set(per_step) == {1}
     assert ended >= 8
     if "puppet" in overrides[0]:  # the mid-task or later-subtask starts were stepped
-        assert bool(env.started_mid_task.any())
+        assert bool(env.tracker.started_mid_task.any())
 
 
 @pytest.mark.parametrize(("task", "start"), [("carry", "env.mid_task_init_prob=0.5"),
@@ -162,7 +164,7 @@ def test_deferred_reads_change_no_result(task: str, start: str) -> None:
         with deferred_reads():
             obs_b, rew_b, done_b, _ = b.step(actions)
         ended += int(done_a.sum())
-        late += int(a.started_mid_task.sum())
+        late += int(a.tracker.started_mid_task.sum())
         assert torch.equal(done_a, done_b) and torch.equal(rew_a, rew_b), step
         for key in obs_a.keys():
             assert torch.equal(obs_a[key], obs_b[key]), (step, key)

@@ -14,6 +14,7 @@ from detach.character.puppet import GRASP_ACTION
 from detach.config import resolve
 from detach.envs.lh_env import make_env
 from detach.train.runner import rollout_means
+from detach.train.start_library import make_training_env
 
 ROOT = Path(__file__).resolve().parents[1]
 LH1 = ROOT / "configs/tasks/lh1.yaml"
@@ -21,7 +22,8 @@ LH1 = ROOT / "configs/tasks/lh1.yaml"
 
 def _env(prob: float, n: int = 8, eval_mode: bool = False):
     cfg = resolve(LH1, "mlp", ["env.character=puppet", f"env.subtask_start_prob={prob}"])
-    return make_env(cfg, num_envs=n, verbose=False, eval_mode=eval_mode)
+    return make_env(cfg, num_envs=n, verbose=False, eval_mode=True) if eval_mode else \
+        make_training_env(cfg, num_envs=n, verbose=False)
 
 
 @pytest.fixture(scope="module")
@@ -74,7 +76,7 @@ def test_training_success_counts_an_episode_from_the_subtask_it_began_at(late_en
         if "episode_progress" in extras:
             logs.append(extras["log"])
             begins.append(begin[torch.nonzero(dones).flatten()])
-    assert bool(env.started_mid_task.all())  # every reset began later again
+    assert bool(env.tracker.started_mid_task.all())  # every reset began later again
     assert logs and all(bool(log["Episode_Success/lh"].isnan().all()) for log in logs)
     assert all(bool(log["Episode_Success/0_follow"].isnan().all()) for log in logs)
     for log, begin in zip(logs, begins):
@@ -108,7 +110,7 @@ def test_a_box_held_into_climb_is_let_go(late_env) -> None:
     env = late_env
     sub = env.tracker.subtask.clone()
     box = env.plan[1].obj
-    slot = env.dyn_slot[box]
+    slot = env.world.dyn_slot[box]
     ids = torch.nonzero((sub == 1) | (sub == 2)).flatten()
     assert bool((sub[ids] == 1).any()) and bool((sub[ids] == 2).any())
     st = env.state

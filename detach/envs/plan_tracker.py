@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import torch
 
+from detach.envs.starts import StartPlan
 from detach.host_sync import may_any, rows_at
 from detach.sim.state import SceneIndex, SimState
 from detach.skills import Skill, Subtask, skill_class, skill_names
@@ -51,6 +52,9 @@ class PlanTracker:
         """[N] the envs whose subtask changed at the last `advance`."""
         self.objects = self.tensors.obj.expand(n, s).clone()
         """[N, S] each env's object of every subtask (drawn at reset where the plan gives choices)."""
+        self.started_mid_task = torch.zeros(n, dtype=torch.bool, device=d)
+        """[N] episodes that started mid-task or at a later subtask: their success is not the
+        plan's, so not logged as such (`episode_end`)."""
         self.choices = {i: torch.tensor(sub.choices, device=d) for i, sub in enumerate(plan) if sub.choices}
         self._now_and_next = torch.tensor([0.0, services.dt], device=d)
 
@@ -137,22 +141,29 @@ class PlanTracker:
         if may_any(park):
             self.services.trajectory.park(park, root_xy)
 
-    def draw_objects(self, ids: torch.Tensor) -> None:
-        """New episodes in envs ids: draw the object of every subtask that has choices."""
+    def draw_objects(self, ids: torch.Tensor) -> torch.Tensor:
+        """[n, S] the objects of new episodes in envs ids: each subtask with choices draws one."""
+        objects = self.objects[ids]
         for i, options in self.choices.items():
             gen = self.services.generator
             pick = torch.randint(len(options), (len(ids),), generator=gen, device=gen.device).to(options.device)
-            self.objects[ids, i] = options[pick]
+            objects[:, i] = options[pick]
+        return objects
 
-    def reset(self, ids: torch.Tensor, steps: torch.Tensor, root_xy: torch.Tensor) -> None:
-        """New episodes in envs ids (objects drawn with `draw_objects`) start their first
-        subtask (steps [N], root_xy [N, 2]: every env's)."""
+    def reset(self, ids: torch.Tensor, steps: torch.Tensor, start: StartPlan) -> None:
+        """New episodes in envs ids start as `start` says: its objects, its first subtask or a
+        later one (steps [N]: every env's)."""
+        self.objects[ids] = start.objects
+        self.started_mid_task[ids] = start.started_later
         # index_fill_ takes the value as a kernel argument; `t[ids] = 0` copies it to the device
         for t, value in ((self.subtask, 0), (self.begin, 0), (self.hold, 0), (self.done, False), (self.start_step, -1),
                          (self.end_step, -1), *((v, 0) for v in self.stats.values())):
             t.index_fill_(0, ids, value)
         every = torch.ones_like(ids, dtype=torch.bool)
+        root_xy = rows_at(len(self.subtask), ids, start.root_xy)
         self.start(rows_at(len(self.subtask), ids, every, False), steps, root_xy)
+        if start.begins_later is not None:
+            self.begin_at(ids, start.begins_later, start.begin_subtask, steps, root_xy)
 
     def begin_at(self, ids: torch.Tensor, late: torch.Tensor, sub: torch.Tensor, steps: torch.Tensor,
                  root_xy: torch.Tensor) -> None:
@@ -185,6 +196,14 @@ class PlanTracker:
                     start=self.start_step.clone(), end=self.end_step.clone(),
                     exec_time=torch.where(self.end_step >= 0, span, torch.full_like(span, float("nan"))),
                     lh_success=(scores >= 1.0).all(dim=-1), **{k: v.clone() for k, v in self.stats.items()})
+
+    def episode_end(self, ids: torch.Tensor, ended: dict[str, torch.Tensor], length: torch.Tensor,
+                    terminations: tuple[str, ...]) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
+        """(progress of every env with its terminations ended and episode `length` [N], the
+        training log of the finished episodes ids), read before ids reset."""
+        prog = self.progress()
+        prog.update(ended, length=length.clone())
+        return prog, self.episode_log(prog, ids, terminations, ~self.started_mid_task[ids])
 
     def episode_log(self, prog: dict[str, torch.Tensor], ids: torch.Tensor,
                     terminations: tuple[str, ...], counted: torch.Tensor | None = None

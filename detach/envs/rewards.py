@@ -48,18 +48,24 @@ def canonical_term(name: str) -> str:
         return name
 
 
+def check_reward_terms(cfg: RewardsCfg) -> dict[str, float]:
+    """The weight of every registered term, `rewards.terms` applied; ValueError on a name that
+    is no registered term (`detach.train.checks` reports it with file and line)."""
+    terms = registered_terms()
+    weights = {canonical_term(k): float(v) for k, v in cfg.terms.items()}
+    unknown = sorted(set(weights) - set(terms))
+    if unknown:
+        raise ValueError(f"rewards.terms: unknown term '{unknown[0]}'; valid terms: {', '.join(terms)}")
+    return {name: weights.get(name, w) for name, (_fn, w) in terms.items()}
+
+
 class RewardManager:
     """Weighted sum of the current skill's terms plus the penalties; per-term logging."""
 
     def __init__(self, cfg: RewardsCfg, plan: Sequence[Subtask], device: torch.device | str = "cpu") -> None:
-        terms = registered_terms()
-        weights = {canonical_term(k): float(v) for k, v in cfg.terms.items()}
-        unknown = sorted(set(weights) - set(terms))
-        if unknown:
-            raise ValueError(f"rewards.terms: unknown term '{unknown[0]}'; valid terms: {', '.join(terms)}")
+        self.weights = check_reward_terms(cfg)
         self.cfg = cfg
-        self.fns = {name: fn for name, (fn, _w) in terms.items()}
-        self.weights = {name: weights.get(name, w) for name, (_fn, w) in terms.items()}
+        self.fns = {name: fn for name, (fn, _w) in registered_terms().items()}
         wanted = None if cfg.paid_skills is None else {canonical_name(s) for s in cfg.paid_skills}
         paid = [s for s in skill_names() if wanted is None or s in wanted]
         self.active = {n: w for n, w in self.weights.items() if w != 0.0 and n.split("/")[0] in paid}
@@ -104,6 +110,24 @@ class RewardManager:
         dyn = -self.cfg.dyn_obj_speed_penalty_coeff * (excess * free).sum(-1)
         parts["penalty/power"], parts["penalty/dyn_obj_speed"] = power, dyn
         return total + power + dyn, parts
+
+    def add_bonuses(self, reward: torch.Tensor, parts: dict[str, torch.Tensor], completed: torch.Tensor,
+                    skill: torch.Tensor, subtask: torch.Tensor) -> torch.Tensor:
+        """reward [N] plus `completion_bonus` and `done_pay` where they are on, each logged in
+        parts; completed, skill as for `completion_bonus`, subtask [N] each env's current one
+        after this step's transitions."""
+        bonus = self.completion_bonus(completed, skill)
+        if bonus is not None:
+            reward, parts["bonus/subtask_done"] = reward + bonus, bonus
+        done_pay = self.done_pay(subtask)
+        if done_pay is not None:
+            reward, parts["bonus/subtasks_done"] = reward + done_pay, done_pay
+        return reward
+
+    @staticmethod
+    def log(parts: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """The training log's mean of every term over the envs it paid (NaN: none)."""
+        return {f"Episode_Reward/{k}": v.nanmean() for k, v in parts.items()}
 
     def completion_bonus(self, completed: torch.Tensor, skill: torch.Tensor) -> torch.Tensor | None:
         """[N] `subtask_bonus` where a subtask of a paid skill completed at this step (completed

@@ -8,8 +8,9 @@ until Follow and Carry are reliable, and an episode that fails early teaches not
 the rest. Starting some episodes at subtask k gives every subtask its share of samples from
 the first iteration (the long-horizon counterpart of reference state initialisation).
 
-The states are recorded once, at env construction, by driving a second, small env of the
-same task with `detach.envs.oracle.Oracle` through one episode each: whenever a transition
+The states are recorded once per training env, before it is built (the train layer's
+`detach.train.start_library` hands them to it), by driving a second, small env of the same task
+with `detach.envs.oracle.Oracle` through one episode each: whenever a transition
 fires, the simulation state (qpos, qvel), the objects drawn for the plan and the object the
 character holds are kept. A subtask the oracle never began cannot be started at; the env's
 start-up line says how many states each subtask has. Needs a scriptable character (the

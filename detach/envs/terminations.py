@@ -35,6 +35,15 @@ class Terminations:
                 out[name] = out[name] | (active & value)
         return out
 
+    def outcome(self, ended: dict[str, torch.Tensor], timeout: torch.Tensor, last_done: torch.Tensor
+                ) -> tuple[torch.Tensor, torch.Tensor]:
+        """(dones, time_outs) [N] bool of the conditions `ended` (`compute`), the time limit
+        reached (timeout) and the last subtask completed (last_done); a terminated episode is
+        not a time-out."""
+        terminated = torch.stack(list(ended.values())).any(dim=0)
+        time_outs = (timeout | self.last_subtask_ends(last_done)) & ~terminated
+        return terminated | time_outs, time_outs
+
     def last_subtask_ends(self, last_done: torch.Tensor) -> torch.Tensor:
         """IET: the completion of the last subtask ends the episode (unless `env.iet` is none)."""
         return last_done if self.cfg.iet != "none" else torch.zeros_like(last_done)

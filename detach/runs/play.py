@@ -87,7 +87,7 @@ class PolicyRollout:
         return dataclasses.replace(state, outcome="success" if ok else "failure", scores=scores)
 
     def snapshot(self):
-        """Bodies, objects and current subtask of the env (`detach.envs.lh_env.EnvSnapshot`)."""
+        """Bodies, objects and current subtask of the env (`detach.envs.views.EnvSnapshot`)."""
         return self.env.snapshot(0)
 
     def data(self):

@@ -47,12 +47,6 @@ def compile_plan(task: TaskCfg) -> tuple[Subtask, ...]:
     return tuple(out)
 
 
-def plan_error_text(task: TaskCfg, err: PlanError) -> str:
-    """One line naming the task and the key of a plan error (for callers without a file)."""
-    key = "".join(f"[{k}]" if isinstance(k, int) else (f".{k}" if j else k) for j, k in enumerate(err.key))
-    return f"task '{task.name}': {key}: {err}"
-
-
 @dataclass
 class PlanTensors:
     """The plan as tensors [S, ...] for batched lookups by each env's current subtask."""
@@ -74,4 +68,4 @@ class PlanTensors:
         )
 
 
-__all__ = ["PlanTensors", "compile_plan", "canonical_name", "parse_source", "plan_error_text"]
+__all__ = ["PlanTensors", "compile_plan", "canonical_name", "parse_source"]

@@ -12,7 +12,7 @@ import dataclasses
 
 from detach.character import character_class
 from detach.config_schema import RunConfig
-from detach.envs.rewards import RewardManager
+from detach.envs.rewards import check_reward_terms
 from detach.models.factory import model_class
 from detach.sim import SimConfigError, check_backend, check_sim, sim_settings
 from detach.config import ConfigError
@@ -54,7 +54,7 @@ def complete_run_config(cfg: RunConfig) -> RunConfig:
         raise origin.error(("env", "subtask_start_prob"), f"starts episodes at later subtasks, but task "
                            f"'{cfg.task.name}' has one subtask; set it to 0")
     try:
-        RewardManager(cfg.rewards, plan)
+        check_reward_terms(cfg.rewards)
     except ValueError as exc:
         raise origin.error(("rewards", "terms"), str(exc).removeprefix("rewards.terms: ")) from None
     try:

@@ -19,7 +19,7 @@ from rsl_rl.modules import EmpiricalNormalization
 from detach.character import character_class
 from detach.config import ConfigError, load_run_config
 from detach.config_schema import RunConfig, TaskCfg
-from detach.envs.lh_env import LHEnv, make_env
+from detach.envs.lh_env import LHEnv
 from detach.models.factory import DEFAULT_OBS_GROUPS, rsl_rl_model_cfgs
 from detach.models.losses import combine_aux_losses
 from detach.motion import default_motion_lib
@@ -31,6 +31,7 @@ from detach.train.distributed import local_device, rank
 from detach.train.motion_bridge import amp_part_indices, amp_reference_sampler, reset_reference_sampler
 from detach.train.runner import DetachRunner, MetricsSink
 from detach.train.schedule import stage_lengths
+from detach.train.start_library import make_training_env
 from detach.train.teachers import load_teachers
 from detach.train.trained_actor import default_action_std
 from scene_builder.assets import ensure_assets
@@ -113,7 +114,7 @@ def build_runner(cfg: RunConfig, checkpoint_dir: Path | None, device: str, log: 
     device = local_device(device)
     seed_everything(cfg.seed + rank())  # torchrun: each rank its own experience
     prepare_assets(cfg.task)
-    env = make_env(cfg, device=device, seed=cfg.seed + rank())
+    env = make_training_env(cfg, device=device, seed=cfg.seed + rank())
     print(env.describe(), flush=True)
     lib = default_motion_lib(device="cpu")
     env.set_reference_sampler(reset_reference_sampler(lib))
