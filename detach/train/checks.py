@@ -13,7 +13,7 @@ import dataclasses
 from detach.character import character_class
 from detach.config_schema import RunConfig
 from detach.envs.rewards import RewardManager
-from detach.models.factory import model_class
+from detach.models.registry import model_class
 from detach.sim import SimConfigError, check_backend, check_sim, sim_settings
 from detach.config import ConfigError
 from detach.skills import PlanError, canonical_name
