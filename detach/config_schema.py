@@ -128,6 +128,11 @@ class TrajectoryGenCfg:
 class EnvCfg:
     character: str = "humanoid"
     """A registered character (`detach.character`): humanoid or puppet."""
+    skills: tuple[str, ...] = ()
+    """The run's skills, in the order of the `task` one-hot and the AMP condition (their number
+    is its width): every skill of the plan and any others the policy should know. Empty: follow,
+    carry, climb, sit, then the plan's other skills in registry order; filled in when a run is
+    created, so that config.yaml records it (a config.yaml without it means that list)."""
     episode_length: int = 1200
     success_threshold: float = 0.3
     max_transition_steps: int = 60

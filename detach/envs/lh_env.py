@@ -37,7 +37,7 @@ from detach.host_sync import may_any, rows_at
 from detach.sim import make_backend, sim_settings
 from detach.sim.raster import Raster
 from detach.sim.state import SceneIndex, SimState, read_state
-from detach.skills import PlanError, Skill, skill_names
+from detach.skills import PlanError, Skill, run_skills
 from detach.skills.context import SkillContext, SkillServices
 from detach.skills.plan import compile_plan, plan_error_text
 from detach.skills.trajectories import TrajectoryReference
@@ -79,6 +79,8 @@ class LHEnv(VecEnv):
             self.plan = compile_plan(cfg.task)
         except PlanError as exc:
             raise ValueError(plan_error_text(cfg.task, exc)) from None
+        self.skills = run_skills(ec.skills, [sub.skill for sub in self.plan])
+        """The run's skills: the order of the `task` one-hot and of the plan's skill ids."""
         self.character = make_character(ec.character)
         self.model, self.scene = compile_scene(cfg.task, self.character, sc, assets, assets_root,
                                                camera_height=ec.height_map.camera_height)
@@ -104,7 +106,8 @@ class LHEnv(VecEnv):
         self.services = SkillServices(cfg, self.scene, raster, trajectory, self.gen, self.device, self.dt,
                                       self.max_episode_length, self.max_transition_steps, self.num_envs)
         self.resets = ResetSampler(cfg, self.scene, self.model, self.character, self.gen, self.device)
-        self.tracker = PlanTracker(self.plan, self.services, self.index, self.resets.rest_z, self.num_envs)
+        self.tracker = PlanTracker(self.plan, self.skills, self.services, self.index, self.resets.rest_z,
+                                   self.num_envs)
         self.mid_task_skill = self._mid_task_skill(ec.mid_task_init_prob)
         self.started_mid_task = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
         """Episodes that started mid-task or at a later subtask: their success is not the task's,
@@ -113,9 +116,9 @@ class LHEnv(VecEnv):
         self.mid_task_target = None if self.mid_task_skill is None else torch.tensor(
             fixed if fixed is not None else [math.nan] * 3, dtype=torch.float32, device=self.device)
         self.subtask_starts = self._record_subtask_starts(ec.subtask_start_prob, assets, assets_root, verbose)
-        self.rewards = RewardManager(cfg.rewards, self.plan, self.device)
+        self.rewards = RewardManager(cfg.rewards, self.plan, self.device, self.skills)
         self.terminations = Terminations(ec, self.tracker.skills)
-        self.observations = ObservationBuilder(ec, self.num_envs, len(skill_names()), self.num_actions, raster,
+        self.observations = ObservationBuilder(ec, self.num_envs, self.skills, self.num_actions, raster,
                                                self.index.key.tolist(), self.index.dyn, self.index.obj_half,
                                                self.device)
         self.obs_spec = self.observations.spec

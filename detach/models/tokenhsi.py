@@ -5,7 +5,7 @@ Policy (`TokenHSITrunk`): one token per input, all in one d_model space (TokenHS
 token space", the coupling DETACH argues against):
 - a proprioception tokenizer on the newest `self_frames` frames of the `self` history
   (TokenHSI's humanoid state is the current frame);
-- one task tokenizer per registered skill (`detach.skills.skill_names()`, the one-hot order),
+- one task tokenizer per skill of the run (`ObsSpec.one_hot_skills()`, the one-hot order),
   reading that skill's task observation: the parts of the newest env frame its
   `Skill.task_observation` names (`ObsSpec.env_fields`; e.g. follow: target, path, height
   map);
@@ -41,7 +41,7 @@ from detach.models.attention import MultiHeadAttention
 from detach.models.layout import ObsLayout, TrunkModelCfg, no_columns
 from detach.models.registry import register_model
 from detach.models.structured import StructuredModel
-from detach.skills import canonical_name, skill_class, skill_index, skill_names
+from detach.skills import canonical_name, skill_class
 
 ACTIVE_SKILLS = "active_skills"
 """Key of the [N, K] bool mask of the current skill(s) in the trunk's input dict; taken from the
@@ -132,9 +132,9 @@ class TokenHSITrunk(nn.Module):
         super().__init__()
         layout.require("self", "env", "task")
         self.layout = layout
-        skills = skill_names()
+        skills = layout.spec.one_hot_skills()
         if layout.spec.num_skills != len(skills):
-            raise ValueError(f"TokenHSI has one task tokenizer per registered skill ({', '.join(skills)}); "
+            raise ValueError(f"TokenHSI has one task tokenizer per skill of the run ({', '.join(skills)}); "
                              f"the observation's task one-hot has {layout.spec.num_skills} entries")
         steps, self_dim = layout.history_shape("self")
         self.self_frames = steps if cfg.self_frames == 0 else min(cfg.self_frames, steps)
@@ -322,7 +322,7 @@ class TokenHSIModel(StructuredModel):
         task = self.layout.columns("task")[:, 0]
         done = []
         for skill, source in self.cfg.tokenizer_from.items():
-            if float(mean[task[skill_index(skill)]]) > 0.0:
+            if float(mean[task[self.layout.spec.one_hot_skills().index(canonical_name(skill))]]) > 0.0:
                 continue  # the source ran it: its own tokenizer is trained
             self.trunk.copy_task_tokenizer(skill, source, mean[env], scale[env])
             done.append(f"{canonical_name(skill)} <- {canonical_name(source)}")
