@@ -1,7 +1,7 @@
 """`detach-run keys [section]`: every config key with its type, default and doc.
 
 Generated from the dataclasses of `detach.config_schema` and the config classes of the
-installed model kinds (the `detach.model_kinds` entry points), so the list cannot drift from
+registered model kinds (`detach.models.register_model`, installed add-ons included), so the list cannot drift from
 what the loader accepts. A field's doc is the string literal under it in the class body (the
 convention of this code base); ranges come from `VALUE_RANGES`.
 """
@@ -16,11 +16,10 @@ import types
 import typing
 from dataclasses import dataclass
 from functools import lru_cache
-from importlib.metadata import entry_points
 from typing import Any, Iterator
 
 from detach.config_schema import (
-    MODEL_KIND_ENTRY_POINTS, VALUE_RANGES, EnvCfg, EvalCfg, ModelCfg, RewardsCfg, SimCfg, TaskCfg, TrainCfg,
+    VALUE_RANGES, EnvCfg, EvalCfg, ModelCfg, RewardsCfg, SimCfg, TaskCfg, TrainCfg, registered_model_kinds,
 )
 
 SECTIONS: dict[str, type] = {"task": TaskCfg, "sim": SimCfg, "env": EnvCfg, "rewards": RewardsCfg,
@@ -141,14 +140,8 @@ def _keys_of(cls: type, prefix: str, section: str, kind: str | None = None,
 
 
 def model_kinds() -> dict[str, type[ModelCfg]]:
-    """Installed model kinds -> config class (entry points), in name order."""
-    found = {}
-    for ep in sorted(entry_points(group=MODEL_KIND_ENTRY_POINTS), key=lambda e: e.name):
-        try:
-            found[ep.name] = ModelCfg.kind_class(ep.name)
-        except (ValueError, ImportError):
-            continue
-    return found
+    """Model kinds -> config class (built-in, installed add-ons, registered), in name order."""
+    return dict(sorted(registered_model_kinds().items()))
 
 
 def all_keys(sections: tuple[str, ...] | None = None) -> list[Key]:
@@ -188,8 +181,8 @@ def select(section: str | None) -> list[Key]:
 
 
 def kind_names() -> list[str]:
-    """Names of the installed model kinds (without importing them)."""
-    return sorted(ep.name for ep in entry_points(group=MODEL_KIND_ENTRY_POINTS))
+    """Names of the model kinds."""
+    return list(model_kinds())
 
 
 def format_keys(keys: list[Key], width: int = 100) -> str:

@@ -128,6 +128,11 @@ class TrajectoryGenCfg:
 class EnvCfg:
     character: str = "humanoid"
     """A registered character (`detach.character`): humanoid or puppet."""
+    skills: tuple[str, ...] = ()
+    """The run's skills, in the order of the `task` one-hot and the AMP condition (their number
+    is its width): every skill of the plan and any others the policy should know. Empty: follow,
+    carry, climb, sit, then the plan's other skills in registry order; filled in when a run is
+    created, so that config.yaml records it (a config.yaml without it means that list)."""
     episode_length: int = 1200
     success_threshold: float = 0.3
     max_transition_steps: int = 60
@@ -196,11 +201,39 @@ class EvalCfg:
     confidence: float = 0.95
 
 
+BUILTIN_MODELS = "detach.models"
+"""The package whose modules register the built-in model kinds (`register_model`): imported by
+name the first time a kind is looked up, so the configuration layer depends on no network."""
 MODEL_KIND_ENTRY_POINTS = "detach.model_kinds"
-"""Entry-point group naming the config class of each model kind (pyproject.toml); a model YAML
-may also give `kind: package.module:ConfigClass` for a kind that is not installed."""
+"""Entry-point group of installed add-on packages: each entry names a model kind's module (or
+its config class); loading it registers the kind. A model YAML may instead give
+`kind: package.module:ConfigClass` for a kind that is not installed."""
 
 _KIND_CLASSES: dict[str, type["ModelCfg"]] = {}
+
+
+def register_model_kind(kind: str, config_class: type["ModelCfg"] | None) -> None:
+    """Map a model kind to its config class; called by `register_model`. None removes the kind
+    and the `package.module:Class` names that resolved to its class."""
+    if config_class is not None:
+        _KIND_CLASSES[kind] = config_class
+        return
+    removed = _KIND_CLASSES.pop(kind, None)
+    for name in [k for k, cls in _KIND_CLASSES.items() if cls is removed and ":" in k]:
+        del _KIND_CLASSES[name]
+
+
+def registered_model_kinds() -> dict[str, type["ModelCfg"]]:
+    """Every model kind by name: the built-ins, the installed add-ons and those registered in
+    this process (an add-on whose entry point fails to load is left out)."""
+    importlib.import_module(BUILTIN_MODELS)
+    for ep in entry_points(group=MODEL_KIND_ENTRY_POINTS):
+        if ep.name not in _KIND_CLASSES:
+            try:
+                ModelCfg.kind_class(ep.name)
+            except (ValueError, ImportError):
+                continue
+    return {kind: cls for kind, cls in _KIND_CLASSES.items() if ":" not in kind}
 
 
 @dataclass(frozen=True)
@@ -234,8 +267,11 @@ class ModelCfg:
 
     @classmethod
     def kind_class(cls, kind: str) -> type["ModelCfg"]:
-        """The config class of a model kind: an installed entry point of
-        `MODEL_KIND_ENTRY_POINTS`, or `package.module:Class`; ValueError naming the kinds."""
+        """The config class of a model kind: a registered kind (the built-ins first), an
+        installed entry point of `MODEL_KIND_ENTRY_POINTS`, or `package.module:Class`;
+        ValueError naming the kinds."""
+        if kind not in _KIND_CLASSES:
+            importlib.import_module(BUILTIN_MODELS)
         if kind in _KIND_CLASSES:
             return _KIND_CLASSES[kind]
         found = {ep.name: ep for ep in entry_points(group=MODEL_KIND_ENTRY_POINTS)}
@@ -248,12 +284,13 @@ class ModelCfg:
             except (ImportError, AttributeError) as exc:
                 raise ValueError(f"model kind '{kind}' cannot be imported ({exc})") from None
         else:
-            installed = ", ".join(sorted(found)) or "none installed (pip install -e .)"
-            raise ValueError(f"unknown model kind '{kind}'; available: {installed}, or package.module:ConfigClass")
-        if not (isinstance(target, type) and issubclass(target, ModelCfg)):
+            available = ", ".join(sorted(k for k in _KIND_CLASSES if ":" not in k))
+            raise ValueError(f"unknown model kind '{kind}'; available: {available}, or package.module:ConfigClass")
+        if isinstance(target, type) and issubclass(target, ModelCfg):
+            _KIND_CLASSES[kind] = target
+        elif kind not in _KIND_CLASSES:  # an entry point naming a module registers its kind on import
             raise ValueError(f"model kind '{kind}' names {target!r}, not a ModelCfg subclass")
-        _KIND_CLASSES[kind] = target
-        return target
+        return _KIND_CLASSES[kind]
 
 
 @dataclass(frozen=True)

@@ -13,8 +13,7 @@ EGR 0.81, SGR 0.13).
 
 from __future__ import annotations
 
-PAPER_NAMES = {"cml": "CML", "tokenhsi": "TokenHSI", "detach": "DETACH",
-               "ablation_a1": "A1", "ablation_a2": "A2"}
+from detach.models import paper_label
 
 SKILLS: dict[str, dict[str, float]] = {
     # Table I (LH1): Follow, Carry, Climb, Sit, LH1
@@ -52,10 +51,10 @@ SWAP_NOTE = ("Paper rows: the paper's own numbers. Its Table II prints the SGR. 
 def reference_rows(table: str) -> list[tuple[dict[str, str], dict[str, float]]]:
     """(label cells by key, numbers by key) of the paper's rows for one of our tables."""
     if table == "skills":
-        return [({"method": f"paper: {PAPER_NAMES[m]}"}, v) for m, v in SKILLS.items()]
+        return [({"method": f"paper: {paper_label(m)}"}, v) for m, v in SKILLS.items()]
     if table == "generalization":
-        return [({"experiment": task.upper(), "method": f"paper: {PAPER_NAMES[m]}"}, v)
+        return [({"experiment": task.upper(), "method": f"paper: {paper_label(m)}"}, v)
                 for (task, m), v in GENERALIZATION.items()]
     if table == "ablation":
-        return [({"method": f"paper: {PAPER_NAMES[m]}"}, v) for m, v in ABLATION.items()]
+        return [({"method": f"paper: {paper_label(m)}"}, v) for m, v in ABLATION.items()]
     return []

@@ -191,3 +191,50 @@ def test_the_env_stays_an_orchestrator() -> None:
     in 360 lines; a file that grows past 200 lines has taken one back."""
     lines = len((ROOT / "detach/envs/lh_env.py").read_text(encoding="utf-8").splitlines())
     assert lines <= 200, f"detach/envs/lh_env.py has {lines} lines (at most 200): move a job out of LHEnv"
+
+
+def _register_model_calls(path: Path) -> list[ast.Call]:
+    """The `register_model(...)` calls at the top level of a module."""
+    return [node.value for node in ast.parse(path.read_text(encoding="utf-8")).body
+            if isinstance(node, ast.Expr) and isinstance(node.value, ast.Call)
+            and getattr(node.value.func, "id", None) == "register_model"]
+
+
+def test_every_built_in_model_kind_is_one_module_registered_through_register_model() -> None:
+    """A model kind is its config class, its trunk and its rsl-rl model in one module under
+    detach/models that registers it with `register_model`; every shipped model YAML's kind is
+    one and its name has a label there."""
+    from detach.config import load_merged
+    from detach.models import model_order, registered_models
+
+    found = {name: len(_register_model_calls(path)) for name, path in modules().items()
+             if name.startswith("detach.models.")}
+    assert all(n <= 1 for n in found.values()), found
+    registering = sorted(name for name, n in found.items() if n == 1)
+    entries = [e for e in registered_models() if e.network.__module__.startswith("detach.")]
+    assert sorted(e.network.__module__ for e in entries) == registering
+    for e in entries:
+        assert e.config_class.__module__ == e.network.__module__, e.kind
+        assert e.network.trunk_class.__module__ == e.network.__module__, e.kind
+    kinds = {e.kind for e in entries}
+    for path in (ROOT / "configs" / "models").glob("*.yaml"):
+        kind = load_merged(path)[0]["model"]["kind"]
+        assert kind in kinds, f"{path.name}: kind {kind!r} is not a built-in kind"
+        assert path.stem in model_order(), f"{path.name}: no label registered with kind {kind}"
+
+
+def test_no_model_table_outside_the_registry() -> None:
+    """The networks and their labels are registered with their kind: no module keeps a list of
+    model classes (MODEL_CLASSES) or writes a registered label ("TokenHSI (adapters)") itself."""
+    from detach.models import registered_models
+
+    labels = {label: e.network.__module__ for e in registered_models() for label in
+              (*e.labels.values(), *e.paper_labels.values())}
+    found = []
+    for name, path in modules().items():
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Name) and node.id == "MODEL_CLASSES":
+                found.append(f"{name}:{node.lineno}: MODEL_CLASSES")
+            if isinstance(node, ast.Constant) and isinstance(node.value, str) and labels.get(node.value, name) != name:
+                found.append(f"{name}:{node.lineno}: the label {node.value!r} of {labels[node.value]}")
+    assert not found, "\n".join(found)

@@ -29,6 +29,7 @@ def _args(name: str, tmp_path: Path) -> tuple[list[str], str]:
         "05_train_tiny_run.py": (["--runs", str(tmp_path / "runs"), "--iterations", "1"], ": finished, follow success"),
         "06_open_dashboard.py": (["--runs", str(tmp_path), "--port", str(_free_port()), "--seconds", "1"],
                                  "dashboard: http://127.0.0.1:"),
+        "07_add_model.py": (["--runs", str(tmp_path / "runs"), "--iterations", "1"], "model 'Linear', follow success"),
     }[name]
 
 

@@ -30,7 +30,7 @@ from detach.envs.world import World
 from detach.host_sync import may_any, rows_at
 from detach.sim import sim_settings
 from detach.sim.state import SimState
-from detach.skills import skill_names
+from detach.skills import run_skills
 from detach.skills.context import SkillContext, SkillServices
 from detach.skills.plan import compile_plan
 from detach.skills.trajectories import TrajectoryReference
@@ -48,6 +48,7 @@ class LHEnv(VecEnv):
         self.gen = torch.Generator(device=self.device).manual_seed(int(cfg.seed if seed is None else seed))
         """Every random draw of task logic, on the env's device (no host round trip on a GPU)."""
         self.plan = compile_plan(cfg.task)  # checked with file and line before: detach.train.checks
+        self.skills = run_skills(ec.skills, [sub.skill for sub in self.plan])  # one-hot and skill-id order
         self.world = world = World.build(cfg, sc, self.num_envs, self.device, assets, assets_root)
         self.character, self.model, self.scene, self.backend = world.character, world.model, world.scene, world.backend
         self.index, self.num_actions = world.index, self.character.num_actions
@@ -59,12 +60,13 @@ class LHEnv(VecEnv):
         self.services = SkillServices(cfg, self.scene, world.raster, trajectory, self.gen, self.device, self.dt,
                                       self.max_episode_length, self.max_transition_steps, self.num_envs)
         self.resets = ResetSampler(cfg, self.scene, self.model, self.character, self.gen, self.device)
-        self.tracker = PlanTracker(self.plan, self.services, self.index, self.resets.rest_z, self.num_envs)
+        self.tracker = PlanTracker(self.plan, self.skills, self.services, self.index, self.resets.rest_z,
+                                   self.num_envs)
         self.starts = EpisodeStarts(cfg, self.plan, world, self.resets, self.tracker.skills, subtask_starts, eval_mode)
         self.subtask_starts = self.starts.recorded
-        self.rewards = RewardManager(cfg.rewards, self.plan, self.device)
+        self.rewards = RewardManager(cfg.rewards, self.plan, self.device, self.skills)
         self.terminations = Terminations(ec, self.tracker.skills)
-        self.observations = ObservationBuilder(ec, self.num_envs, len(skill_names()), self.num_actions,
+        self.observations = ObservationBuilder(ec, self.num_envs, self.skills, self.num_actions,
                                                world.raster, self.index.key.tolist(), self.index.dyn,
                                                self.index.obj_half, self.device)
         self.obs_spec = self.observations.spec

@@ -2,13 +2,16 @@
 
 Every group is a 2-D tensor [N, D] (rsl-rl-lib's format). History groups travel flattened
 ([N, T*d], time-major: step 0 is the oldest, step T-1 the newest) and models reshape them with
-the (T, d) given here. The sizes depend only on the character and the env config, never on the
-scene, so a policy trained on LH1 runs on LH2 and LH3.
+the (T, d) given here. The sizes depend only on the character and the env config (the run's
+skills, `env.skills`, give the `task` width), never on the scene or on what else a process
+registered, so a policy trained on LH1 runs on LH2 and LH3.
 """
 
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+
+from detach.skills import skill_names
 
 OBS_GROUPS: tuple[str, ...] = ("self", "env", "task", "critic", "amp")
 OBJECT_WIDTH = 3 + 6 + 24
@@ -28,13 +31,26 @@ class ObsSpec:
     height_map_cells: int
     """The last `height_map_cells` entries of an env frame are the local height map (grid x grid)."""
     num_skills: int
-    """Width of the `task` one-hot (skill-registry order, `detach.skills`)."""
+    """Width of the `task` one-hot (the run's skills, `env.skills`)."""
     critic_dim: int
     """Width of the privileged `critic` group."""
     amp_steps: int
     amp_dim: int
     """The `amp` group is [N, amp_steps * amp_dim]."""
     num_actions: int
+    skills: tuple[str, ...] = ()
+    """The skill of each `task` one-hot entry, in order (empty in specs written before it)."""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "skills", tuple(self.skills))  # a list when read back from YAML
+        if self.skills and len(self.skills) != self.num_skills:
+            raise ValueError(f"ObsSpec: {len(self.skills)} skills {list(self.skills)} for a task one-hot "
+                             f"of {self.num_skills}")
+
+    def one_hot_skills(self) -> tuple[str, ...]:
+        """The skill of each `task` one-hot entry; for a spec without `skills`, the registry's
+        first `num_skills` (follow, carry, climb, sit for every run recorded before it)."""
+        return self.skills or skill_names()[:self.num_skills]
 
     def group_dims(self) -> dict[str, int]:
         """Flat width of each TensorDict group."""
@@ -46,7 +62,7 @@ class ObsSpec:
             "amp": self.amp_steps * self.amp_dim,
         }
 
-    def to_dict(self) -> dict[str, int]:
+    def to_dict(self) -> dict[str, int | tuple[str, ...]]:
         return asdict(self)
 
     def env_fields(self) -> dict[str, slice]:

@@ -224,9 +224,10 @@ class ObservationBuilder:
     """Assembles the observation TensorDict of every step from the state and the skills'
     targets, keeping the `self`, `env` and `amp` histories (see the module docstring)."""
 
-    def __init__(self, cfg: EnvCfg, num_envs: int, num_skills: int, num_actions: int, raster: Raster,
+    def __init__(self, cfg: EnvCfg, num_envs: int, skills: tuple[str, ...], num_actions: int, raster: Raster,
                  key_bodies: list[int], dyn: torch.Tensor, obj_half: torch.Tensor, device: torch.device) -> None:
         hm, samples = cfg.height_map, cfg.trajectory.num_samples
+        num_skills = len(skills)
         self.cfg, self.num_envs, self.num_skills, self.device = cfg, num_envs, num_skills, device
         self.skill_ids = torch.arange(num_skills, device=device)
         self.raster, self.dyn, self.obj_half = raster, dyn, obj_half
@@ -236,7 +237,7 @@ class ObservationBuilder:
             self_steps=cfg.history_self, self_dim=SELF_DIM, env_steps=cfg.history_env,
             env_dim=env_dim(hm.grid, samples), height_map_cells=hm.grid * hm.grid, num_skills=num_skills,
             critic_dim=SELF_DIM + env_dim(hm.grid, samples) + num_skills + CRITIC_EXTRA,
-            amp_steps=cfg.amp_obs_steps, amp_dim=AMP_DIM, num_actions=num_actions)
+            amp_steps=cfg.amp_obs_steps, amp_dim=AMP_DIM, num_actions=num_actions, skills=skills)
         self.h_self = History(num_envs, cfg.history_self, SELF_DIM, device)
         self.h_env = History(num_envs, cfg.history_env, env_dim(hm.grid, samples), device)
         self.h_amp = History(num_envs, cfg.amp_obs_steps, AMP_DIM, device)

@@ -19,21 +19,21 @@ import torch
 from detach.envs.starts import StartPlan
 from detach.host_sync import may_any, rows_at
 from detach.sim.state import SceneIndex, SimState
-from detach.skills import Skill, Subtask, skill_class, skill_names
+from detach.skills import Skill, Subtask, skill_class
 from detach.skills.context import SkillContext, SkillServices
 from detach.skills.plan import PlanTensors
 
 
 class PlanTracker:
-    def __init__(self, plan: tuple[Subtask, ...], services: SkillServices, index: SceneIndex,
-                 rest_z: torch.Tensor, num_envs: int) -> None:
+    def __init__(self, plan: tuple[Subtask, ...], skills: tuple[str, ...], services: SkillServices,
+                 index: SceneIndex, rest_z: torch.Tensor, num_envs: int) -> None:
         self.plan, self.services, self.index, self.rest_z = plan, services, index, rest_z
         d, n, s = services.device, num_envs, len(plan)
-        self.tensors = PlanTensors.build(plan, d)
-        names = skill_names()
+        self.tensors = PlanTensors.build(plan, skills, d)
+        names = skills
         present = {sub.skill for sub in plan}
         self.skills: dict[int, Skill] = {}
-        """Registry index -> bound skill, for the skills of this plan (registry order)."""
+        """Index in the run's skills (`LHEnv.skills`) -> bound skill, for the skills of this plan."""
         for i, name in enumerate(names):
             if name in present:
                 self.skills[i] = skill_class(name)()

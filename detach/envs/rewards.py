@@ -28,7 +28,7 @@ import torch
 
 from detach.config_schema import RewardsCfg
 from detach.host_sync import may_any
-from detach.skills import canonical_name, skill_class, skill_index, skill_names
+from detach.skills import canonical_name, run_skills, skill_class, skill_names
 from detach.skills.base import Subtask
 from detach.skills.context import SkillContext
 
@@ -62,15 +62,18 @@ def check_reward_terms(cfg: RewardsCfg) -> dict[str, float]:
 class RewardManager:
     """Weighted sum of the current skill's terms plus the penalties; per-term logging."""
 
-    def __init__(self, cfg: RewardsCfg, plan: Sequence[Subtask], device: torch.device | str = "cpu") -> None:
+    def __init__(self, cfg: RewardsCfg, plan: Sequence[Subtask], device: torch.device | str = "cpu",
+                 skills: Sequence[str] | None = None) -> None:
+        """`skills`: the run's (`run_skills`; by default those of a config without env.skills)."""
+        skills = run_skills((), [sub.skill for sub in plan]) if skills is None else tuple(skills)
         self.weights = check_reward_terms(cfg)
         self.cfg = cfg
         self.fns = {name: fn for name, (fn, _w) in registered_terms().items()}
         wanted = None if cfg.paid_skills is None else {canonical_name(s) for s in cfg.paid_skills}
-        paid = [s for s in skill_names() if wanted is None or s in wanted]
+        paid = [s for s in skills if wanted is None or s in wanted]
         self.active = {n: w for n, w in self.weights.items() if w != 0.0 and n.split("/")[0] in paid}
-        self.skill_of = {n: skill_index(n.split("/")[0]) for n in self.active}
-        self.bonus_skills = [skill_index(s) for s in paid] if cfg.subtask_bonus > 0 else []
+        self.skill_of = {n: skills.index(n.split("/")[0]) for n in self.active}
+        self.bonus_skills = [skills.index(s) for s in paid] if cfg.subtask_bonus > 0 else []
         before = [0]
         for sub in plan[:-1]:
             before.append(before[-1] + (sub.skill in paid))

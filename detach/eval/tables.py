@@ -30,15 +30,10 @@ from typing import Callable, Iterable, Sequence
 
 from detach.eval.aids import label
 from detach.eval.metrics import LEARNED_SKILLS, NOVEL_SKILLS, egr, sgr, success_rate, wilson_interval
+from detach.models import model_label, model_order
 from detach.run_contract import SGR_VARIANTS, EvalResult
 from detach.skills import canonical_name, display_name, skill_names
 
-METHOD_NAMES = {"cml": "CML", "tokenhsi": "TokenHSI", "detach": "DETACH",
-                "cml_incremental": "CML (incremental)", "tokenhsi_adapt": "TokenHSI (adapters)",
-                "ablation_a1": "A1 (w/o env encoder)", "ablation_a2": "A2 (w/o self encoder)",
-                "mlp": "MLP"}
-"""Row names; the composition reading's substitutes name the baseline whose mechanism they are."""
-METHOD_ORDER = ["mlp", "cml", "cml_incremental", "tokenhsi", "tokenhsi_adapt", "ablation_a1", "ablation_a2", "detach"]
 PAPER_SKILLS = (*LEARNED_SKILLS, *NOVEL_SKILLS)
 LH_COLUMNS = [("follow", 0), ("carry", 0), ("follow", 1), ("climb", 0), ("sit", 0)]
 """Paper's Table II columns: (skill, occurrence of that skill in the plan)."""
@@ -253,12 +248,13 @@ def _group(evals: Iterable[EvalResult]) -> dict[tuple[str, str, Method], list[Ev
 
 def _order(method: Method) -> tuple[int, str, int, tuple[str, ...]]:
     model, aids = method
-    return (METHOD_ORDER.index(model) if model in METHOD_ORDER else 99, model, len(aids), aids)
+    order = model_order()  # the registry's: built-in models first, then add-ons
+    return (order.index(model) if model in order else len(order), model, len(aids), aids)
 
 
 def method_label(method: Method) -> str:
     model, aids = method
-    return label(METHOD_NAMES.get(model, model), aids)
+    return label(model_label(model), aids)
 
 
 def _lh1_rate(groups, trained_on: str, method: Method) -> float | None:

@@ -1,11 +1,12 @@
-"""The DETACH trunk: dual encoders -> projections -> adaptive fusion -> shared transformer φ.
+"""DETACH (kind `detach`, with its ablations A1/A2): config, trunk (dual encoders -> projections ->
+adaptive fusion -> shared transformer φ) and rsl-rl model.
 
 Tokens of φ (our choice; the paper only says φ(f_fused)): one fused token per self-history step
 (T_self tokens, f_fused[t] = fusion of f_self[t] with the env sequence) + one task token
 (linear embedding of the skill one-hot) + one token per extra flat group (the privileged
 `critic` group in the critic), plus learned position embeddings. The output tokens are
 flattened into the latent [N, n_tokens * d_model] that the adapter MLP (policy or value head,
-in `rsl_rl_models`) consumes; flattening keeps which step each token came from.
+`DetachModel`) consumes; flattening keeps which step each token came from.
 
 Ablations are switches: `use_env_encoder = False` (A1) drops Φ_env and Decoder_env and feeds
 env frames through P_env = Linear(d_env, d_model) directly; `use_self_encoder = False` (A2)
@@ -17,10 +18,12 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass
+from itertools import chain
 from typing import ClassVar
 
 import torch
 import torch.nn as nn
+from tensordict import TensorDict
 
 from detach.models import losses
 from detach.models.attention import TransformerEncoder
@@ -29,7 +32,9 @@ from detach.models.encoders import (
 )
 from detach.models.fusion import AdaptiveFusion, FusionCfg, FusionOutput
 from detach.models.layout import ObsLayout, TrunkModelCfg, no_columns
-from detach.models.losses import RegularizerCfg
+from detach.models.losses import RegularizerCfg, combine_aux_losses
+from detach.models.registry import register_model
+from detach.models.structured import StructuredModel
 
 
 @dataclass(frozen=True)
@@ -263,3 +268,94 @@ class DetachTrunk(nn.Module):
             self.env_anchor.store(self.env_encoder)
         if self.self_encoder is not None:
             self.self_anchor.store(self.self_encoder)
+
+
+class DetachModel(StructuredModel):
+    """DETACH (and its ablations A1/A2 through `use_env_encoder` / `use_self_encoder`).
+
+    Trainer API for the 3-stage protocol:
+        aux_losses(obs, reuse_forward=False) -> {name: scalar}: unweighted terms on the same
+            normalised inputs as forward; runs encoders + fusion again (never φ). With
+            reuse_forward=True and the very TensorDict object of the last training-mode forward
+            pass with grad (a PPO update: actor(batch.observations, ...), then
+            actor.aux_losses(batch.observations, reuse_forward=True), then ONE backward of
+            PPO loss + aux loss) it reuses that pass's encoder and fusion outputs instead,
+            saving ~1/3 of the aux cost; do not use it if that forward's graph was already
+            backpropagated. Terms:
+            L_env (Decoder_env reconstruction), L_self (temporal prediction), R_decouple
+            (‖Corr(z_env, z_self)‖_F²), MI (correlation-based I(z_env, z_self)), R_temporal,
+            R_semantic_env, R_semantic_self, R_semantic (α/β-weighted sum), L_fusion_quality
+            (‖f_cross - (f_env + f_self)‖² + λ_disentangle·MI), R1, R2 (‖θ - θ*‖², 0 before
+            `snapshot_encoders`), R3 (fusion diversity, `regularizers.r3_mode`). Terms whose
+            module an ablation removed are 0; the keys are always the same.
+        aux_loss(obs, stage, reuse_forward=False) -> scalar: the weighted sum for stage
+            pretrain | fusion | joint
+            (see `losses.combine_aux_losses`).
+        encoder_parameters(), pretrain_parameters(), fusion_parameters(), head_parameters()
+        freeze_encoders(), unfreeze_encoders(), snapshot_encoders(), load_encoders_from(other)
+    Pre-training without PPO: call `update_normalization(obs)` yourself so the inputs are
+    normalised as they will be during RL.
+    """
+
+    trunk_class = DetachTrunk
+    config_class = DetachCfg
+    trunk: DetachTrunk
+    _forward_cache: tuple[TensorDict, dict[str, torch.Tensor], DetachFeatures] | None = None
+
+    def trunk_latent(self, obs: TensorDict, groups: dict[str, torch.Tensor]) -> torch.Tensor:
+        feats = self.trunk.encode(groups)
+        # Keep the encoder/fusion outputs of a training forward pass for aux_losses on the same obs.
+        self._forward_cache = (obs, groups, feats) if torch.is_grad_enabled() and self.training else None
+        return self.trunk.latent(groups, feats)
+
+    def aux_losses(self, obs: TensorDict, reuse_forward: bool = False) -> dict[str, torch.Tensor]:
+        cache, self._forward_cache = self._forward_cache, None
+        if reuse_forward and cache is not None and cache[0] is obs:
+            return self.trunk.aux_losses(cache[1], self.cfg.regularizers, cache[2])
+        return self.trunk.aux_losses(self.normalized_groups(obs), self.cfg.regularizers)
+
+    def aux_loss(self, obs: TensorDict, stage: str, reuse_forward: bool = False) -> torch.Tensor:
+        return combine_aux_losses(self.aux_losses(obs, reuse_forward), stage, self.cfg.regularizers)
+
+    def encoder_parameters(self) -> Iterator[nn.Parameter]:
+        """θ_env and θ_self (Φ_env, Φ_self)."""
+        return chain.from_iterable(m.parameters() for m in self.trunk.encoder_modules())
+
+    def pretrain_parameters(self) -> Iterator[nn.Parameter]:
+        """Stage 1: the encoders plus Decoder_env, Decoder_self and f_pred."""
+        mods = self.trunk.encoder_modules() + self.trunk.pretrain_head_modules()
+        return chain.from_iterable(m.parameters() for m in mods)
+
+    def fusion_parameters(self) -> Iterator[nn.Parameter]:
+        """Stage 2 (besides the heads): P_env, P_self, fusion, tokens and φ."""
+        return self.trunk.fusion_parameters()
+
+    def freeze_encoders(self) -> None:
+        """Stage 2: θ_env, θ_self get requires_grad=False (Adam skips params without grad)."""
+        for p in self.encoder_parameters():
+            p.requires_grad_(False)
+
+    def unfreeze_encoders(self) -> None:
+        for p in self.encoder_parameters():
+            p.requires_grad_(True)
+
+    def snapshot_encoders(self) -> None:
+        """Record θ*_env, θ*_self (call at the end of pre-training); R1/R2 measure drift from them."""
+        self.trunk.snapshot_encoders()
+
+    @torch.no_grad()
+    def load_encoders_from(self, other: DetachModel) -> None:
+        """Copy encoders, their pre-training heads and anchors from another DETACH model (actor -> critic)."""
+        t, o = self.trunk, other.trunk
+        names = ("env_encoder", "env_decoder", "self_encoder", "self_decoder", "predictor", "env_anchor", "self_anchor")
+        for name in names:
+            mine, theirs = getattr(t, name), getattr(o, name)
+            if (mine is None) != (theirs is None):
+                raise ValueError(f"cannot copy {name}: present in only one of the two models")
+            if mine is not None:
+                mine.load_state_dict(theirs.state_dict())
+
+
+register_model(DetachModel, labels={"ablation_a1": "A1 (w/o env encoder)", "ablation_a2": "A2 (w/o self encoder)",
+                                    "detach": "DETACH"},
+               paper_labels={"ablation_a1": "A1", "ablation_a2": "A2"})

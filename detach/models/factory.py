@@ -1,4 +1,5 @@
-"""ModelCfg + ObsSpec -> rsl-rl actor/critic configs, or the models themselves.
+"""ModelCfg + ObsSpec -> rsl-rl actor/critic configs, or the models themselves (through the
+network `register_model` gave the config's kind).
 
 `rsl_rl_model_cfgs` gives the `actor` and `critic` entries of rsl-rl's train_cfg (the typed
 model config and obs spec travel as objects; rsl-rl deep-copies them). `build_actor_critic`
@@ -13,17 +14,8 @@ from tensordict import TensorDict
 
 from detach.config_schema import ModelCfg
 from detach.envs.obs_spec import ObsSpec
-from detach.models.rsl_rl_models import (
-    CMLModel,
-    DetachModel,
-    MLPBaselineModel,
-    StructuredModel,
-    TokenHSIModel,
-    link_shared_trunk,
-)
-
-MODEL_CLASSES: tuple[type[StructuredModel], ...] = (DetachModel, TokenHSIModel, CMLModel, MLPBaselineModel)
-"""The networks of the study; each declares the config class it is built from."""
+from detach.models.registry import model_class
+from detach.models.structured import StructuredModel, link_shared_trunk
 
 DEFAULT_OBS_GROUPS: dict[str, list[str]] = {
     "actor": ["self", "env", "task"],
@@ -38,24 +30,12 @@ def class_path(cls: type) -> str:
     return f"{cls.__module__}:{cls.__qualname__}"
 
 
-def model_class(model_cfg: ModelCfg) -> type[StructuredModel]:
-    """The network of a model config: the class whose `config_class` it is (most derived)."""
-    for cls in MODEL_CLASSES:
-        if type(model_cfg) is cls.config_class:
-            return cls
-    network = getattr(model_cfg, "network", None)
-    if network is not None:
-        return network
-    raise ValueError(f"no network for model kind '{model_cfg.kind}' ({type(model_cfg).__name__}); a plug-in "
-                     f"config class names its network as the class attribute `network`")
-
-
 def rsl_rl_model_cfgs(model_cfg: ModelCfg, obs_spec: ObsSpec, default_std: float) -> tuple[dict, dict]:
     """(actor_cfg, critic_cfg) for rsl-rl's train_cfg["actor"] / ["critic"].
 
     The actor gets a Gaussian action distribution with state-independent std
     (`init_noise_std`, or `default_std` -- the character's -- when it is None); the critic gets
-    one value head per `critic_objectives` entry when there are several (see `rsl_rl_models`).
+    one value head per `critic_objectives` entry when there are several (see `detach.models.structured`).
     """
     common = {"class_name": class_path(model_class(model_cfg)), "obs_spec": obs_spec, "model": model_cfg}
     std = default_std if model_cfg.init_noise_std is None else model_cfg.init_noise_std

@@ -1,4 +1,5 @@
-"""MLP baseline trunk: the normalised groups, flattened and concatenated (rsl-rl's MLPModel input).
+"""The MLP baseline (kind `mlp`): its config, its trunk (the normalised groups, flattened and
+concatenated, rsl-rl's MLPModel input) and its rsl-rl model.
 
 The head MLP ([1024, 512] via `adapter_units`) does all the work; this trunk exists so the
 baseline shares the group handling and the multi-head critic of the other kinds. With
@@ -9,13 +10,15 @@ benchmarks/RESULTS.md: 5 frames -> 1 frame, 3.3 -> 1.97 s per PPO iteration on t
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 import torch.nn as nn
 
-from dataclasses import dataclass
-
 from detach.config_schema import ModelCfg
 from detach.models.layout import HISTORY_GROUPS, ObsLayout
+from detach.models.registry import register_model
+from detach.models.structured import StructuredModel
 
 
 @dataclass(frozen=True)
@@ -77,3 +80,13 @@ class FlatTrunk(nn.Module):
                 x = x[:, -self.frames:]  # time-major: the newest frames are last
             parts.append(x.reshape(n, -1))
         return torch.cat(parts, dim=-1)
+
+
+class MLPBaselineModel(StructuredModel):
+    """Plain MLP on the concatenated normalised groups (same as rsl-rl's MLPModel)."""
+
+    trunk_class = FlatTrunk
+    config_class = MLPCfg
+
+
+register_model(MLPBaselineModel, labels={"mlp": "MLP"})

@@ -1,10 +1,11 @@
-"""TokenHSI (Pan et al. 2025) as published: tokenizers, masked shared transformer, adapters.
+"""TokenHSI (Pan et al. 2025) as published: tokenizers, masked shared transformer, adapters
+(kind `tokenhsi`: config, trunks, head adapter, rsl-rl model).
 
 Policy (`TokenHSITrunk`): one token per input, all in one d_model space (TokenHSI's "unified
 token space", the coupling DETACH argues against):
 - a proprioception tokenizer on the newest `self_frames` frames of the `self` history
   (TokenHSI's humanoid state is the current frame);
-- one task tokenizer per registered skill (`detach.skills.skill_names()`, the one-hot order),
+- one task tokenizer per skill of the run (`ObsSpec.one_hot_skills()`, the one-hot order),
   reading that skill's task observation: the parts of the newest env frame its
   `Skill.task_observation` names (`ObsSpec.env_fields`; e.g. follow: target, path, height
   map);
@@ -22,21 +23,25 @@ Value function (`TokenHSIValueTrunk`): TokenHSI's critic is a separate MLP
 (the newest self and env frames, the one-hot, privileged extras). With `shared_trunk` the
 critic reads the actor's transformer instead (an option of this platform, not TokenHSI's).
 
-Adapter stage (`adapt_skills`, TokenHSI's skill adaptation, `detach.models.adapters`): see
-`TokenHSIModel` in `rsl_rl_models`.
+Adapter stage (`adapt_skills`, TokenHSI's skill adaptation, `HeadAdapter`): see `TokenHSIModel`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import torch
 import torch.nn as nn
-from rsl_rl.modules import MLP
+from rsl_rl.modules import MLP, EmpiricalNormalization
+from tensordict import TensorDict
 
+from detach.config_schema import ModelCfg
 from detach.models.attention import MultiHeadAttention
 from detach.models.layout import ObsLayout, TrunkModelCfg, no_columns
-from detach.skills import canonical_name, skill_class, skill_names
+from detach.models.registry import register_model
+from detach.models.structured import StructuredModel
+from detach.skills import canonical_name, skill_class
 
 ACTIVE_SKILLS = "active_skills"
 """Key of the [N, K] bool mask of the current skill(s) in the trunk's input dict; taken from the
@@ -127,9 +132,9 @@ class TokenHSITrunk(nn.Module):
         super().__init__()
         layout.require("self", "env", "task")
         self.layout = layout
-        skills = skill_names()
+        skills = layout.spec.one_hot_skills()
         if layout.spec.num_skills != len(skills):
-            raise ValueError(f"TokenHSI has one task tokenizer per registered skill ({', '.join(skills)}); "
+            raise ValueError(f"TokenHSI has one task tokenizer per skill of the run ({', '.join(skills)}); "
                              f"the observation's task one-hot has {layout.spec.num_skills} entries")
         steps, self_dim = layout.history_shape("self")
         self.self_frames = steps if cfg.self_frames == 0 else min(cfg.self_frames, steps)
@@ -221,3 +226,107 @@ class TokenHSIValueTrunk(nn.Module):
 
     def forward(self, groups: dict[str, torch.Tensor]) -> torch.Tensor:
         return groups["critic"]
+
+
+class HeadAdapter(nn.Module):
+    """TokenHSI's adapter ("internal adaptation", its published adapter configuration): beside
+    every hidden linear layer of the frozen action head a trainable linear layer of the same
+    shape reads the same input and adds its output before the activation. The widths are the
+    head's (TokenHSI and the DETACH appendix: "Adapter Units [1024, 512]"). Every adapter
+    weight and bias starts at zero, so the adapted head equals the frozen head at the start,
+    while the gradient of each adapter layer (input x output-gradient) is not zero."""
+
+    def __init__(self, head: MLP) -> None:
+        super().__init__()
+        hidden = [m for m in head if isinstance(m, nn.Linear)][:-1]
+        self.branches = nn.ModuleList(nn.Linear(m.in_features, m.out_features) for m in hidden)
+        for branch in self.branches:
+            nn.init.zeros_(branch.weight)
+            nn.init.zeros_(branch.bias)
+
+    def forward(self, head: MLP, x: torch.Tensor) -> torch.Tensor:
+        """The head's output on latent x [N, in] with the adapter branches added."""
+        layers = list(head)
+        branch = iter(self.branches)
+        for layer in layers[:-1]:
+            x = layer(x) + next(branch)(x) if isinstance(layer, nn.Linear) else layer(x)
+        return layers[-1](x)
+
+
+class TokenHSIModel(StructuredModel):
+    """TokenHSI: tokenizers, masked transformer, action-token head;
+    as a critic, a separate MLP on the `critic` group (`critic_units`).
+
+    Adapter stage (`adapt_skills`, actor only): TokenHSI's way of learning skills after the
+    base is trained. Frozen (requires_grad False, never stepped): the proprioception tokenizer,
+    the task tokenizers of the other skills, the action token, the transformer, the action head
+    and the input normaliser (its statistics stay those of the previous stage, and the adapted
+    skills' tokenizers read through it too). Trained: the adapted skills' task tokenizers,
+    the `HeadAdapter` (new, zero-initialised: the first actions are the base policy's) and the
+    action std (PPO's exploration noise; TokenHSI keeps it constant in both stages). The
+    critic is not frozen: it starts from the previous stage's critic (same input, same shape)
+    and trains fully, where TokenHSI's adapter stage builds a fresh critic; the critic only
+    shapes the advantages, and a warm start keeps `train.init_from` a plain load.
+    """
+
+    trunk_class = TokenHSITrunk
+    config_class = TokenHSICfg
+    cfg: TokenHSICfg
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.adapter: HeadAdapter | None = None
+        if self.cfg.adapt_skills and self.distribution is not None:
+            self.adapter = HeadAdapter(self.mlp)
+            adapted = [self.trunk.task_tokenizers[canonical_name(s)] for s in self.cfg.adapt_skills]
+            trained = {id(p) for m in (*adapted, self.adapter, self.distribution) for p in m.parameters()}
+            for p in self.parameters():
+                if id(p) not in trained:
+                    p.requires_grad_(False)
+
+    @classmethod
+    def make_trunk(cls, layout: ObsLayout, cfg: ModelCfg, value_only: bool) -> nn.Module:
+        return TokenHSIValueTrunk(layout, cfg) if value_only else TokenHSITrunk(layout, cfg)
+
+    @classmethod
+    def head_units(cls, cfg: ModelCfg, value_only: bool) -> tuple[int, ...]:
+        return tuple(cfg.critic_units if value_only else cfg.adapter_units)
+
+    def normalized_groups(self, obs: TensorDict) -> dict[str, torch.Tensor]:
+        groups = super().normalized_groups(obs)
+        if "task" in self.layout.groups:
+            groups[ACTIVE_SKILLS] = obs["task"] > 0.5
+        return groups
+
+    def head_output(self, latent: torch.Tensor, obs: TensorDict) -> torch.Tensor:
+        return self.mlp(latent) if self.adapter is None else self.adapter(self.mlp, latent)
+
+    def update_normalization(self, obs: TensorDict) -> None:
+        if self.adapter is None:
+            super().update_normalization(obs)
+
+    def new_parameter_prefixes(self) -> tuple[str, ...]:
+        return () if self.adapter is None else ("adapter.",)
+
+    def start_from_loaded(self) -> list[str]:
+        """After `train.init_from` loaded the source's weights and observation statistics (before
+        they are merged): `tokenizer_from`'s copies, for each skill whose one-hot entry the
+        source's statistics never saw set (mean 0: the source never ran it, so its tokenizer
+        never trained). Returns "skill <- source" for each copy made."""
+        norm = self.obs_normalizer
+        if not self.cfg.tokenizer_from or not isinstance(norm, EmpiricalNormalization) \
+                or self.distribution is None:
+            return []
+        mean, scale = norm._mean.reshape(-1), norm._std.reshape(-1) + norm.eps
+        env = self.layout.columns("env")[:, -1]
+        task = self.layout.columns("task")[:, 0]
+        done = []
+        for skill, source in self.cfg.tokenizer_from.items():
+            if float(mean[task[self.layout.spec.one_hot_skills().index(canonical_name(skill))]]) > 0.0:
+                continue  # the source ran it: its own tokenizer is trained
+            self.trunk.copy_task_tokenizer(skill, source, mean[env], scale[env])
+            done.append(f"{canonical_name(skill)} <- {canonical_name(source)}")
+        return done
+
+
+register_model(TokenHSIModel, labels={"tokenhsi": "TokenHSI", "tokenhsi_adapt": "TokenHSI (adapters)"})

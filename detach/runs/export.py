@@ -1,7 +1,7 @@
 """`detach-run export RUN_DIR`: a run's policy as ONNX or TorchScript, checked against torch.
 
 `export_run` rebuilds the run's actor from config.yaml and a checkpoint, exports it through
-the models' rsl-rl API (`as_onnx` / `as_jit`: `detach.models.rsl_rl_models.FlatPolicy`) and
+the models' rsl-rl API (`as_onnx` / `as_jit`: `detach.models.flat_policy.FlatPolicy`) and
 checks the exported file on observations of the run's own environment (and the same
 observations scaled, to leave the normaliser's well-trodden range) against the eager actor:
 onnxruntime for ONNX, `torch.jit.load` for TorchScript. Beside the file, `<name>.json` says how
@@ -20,7 +20,7 @@ import torch
 
 from detach.config import ConfigError
 from detach.envs.lh_env import make_env
-from detach.models.rsl_rl_models import FlatPolicy
+from detach.models.flat_policy import FlatPolicy
 from detach.run_contract import EXPORT_DIR, EXPORT_FORMATS, checkpoint_file, checkpoint_iteration, export_file
 from detach.runs.folder import RunFolder, atomic_write_json, atomic_write_text
 from detach.runs.policy import load_policy

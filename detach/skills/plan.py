@@ -10,6 +10,7 @@ exists; each skill checks the entries it is given (`Skill.compile_entry`).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,7 +18,7 @@ import torch
 
 from detach.config_schema import TaskCfg
 from detach.skills.base import RAND, PlanError, Subtask
-from detach.skills.registry import canonical_name, skill_class, skill_index
+from detach.skills.registry import canonical_name, skill_class
 
 
 def parse_source(src: str) -> tuple[str, int]:
@@ -52,16 +53,16 @@ class PlanTensors:
     """The plan as tensors [S, ...] for batched lookups by each env's current subtask."""
 
     skill: torch.Tensor
-    """Registry index of each subtask's skill."""
+    """Index of each subtask's skill in the run's skills (`run_skills`)."""
     obj: torch.Tensor
     has_fixed: torch.Tensor
     fixed_target: torch.Tensor
 
     @classmethod
-    def build(cls, plan: tuple[Subtask, ...], device: torch.device | str) -> "PlanTensors":
+    def build(cls, plan: tuple[Subtask, ...], skills: Sequence[str], device: torch.device | str) -> "PlanTensors":
         fixed = np.array([s.fixed_target if s.fixed_target is not None else (0.0, 0.0, 0.0) for s in plan])
         return cls(
-            skill=torch.tensor([skill_index(s.skill) for s in plan], device=device),
+            skill=torch.tensor([skills.index(s.skill) for s in plan], device=device),
             obj=torch.tensor([s.obj for s in plan], device=device),
             has_fixed=torch.tensor([s.fixed_target is not None for s in plan], device=device),
             fixed_target=torch.as_tensor(fixed, dtype=torch.float32, device=device),

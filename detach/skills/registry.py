@@ -1,13 +1,17 @@
 """The skill registry: name -> skill class, in a fixed order.
 
-The order is the index of a skill in tensors (the `task` one-hot observation, the AMP
-condition), so it never changes for built-in skills: follow, carry, climb, sit, then plug-ins
-in the order they are registered. `skill_class` accepts a skill's aliases (`traj`).
+A run's skills (`env.skills`, `run_skills`) are an ordered list of registered names, recorded
+in its config.yaml; a skill's position there is its index in the run's tensors (the `task`
+one-hot observation, the AMP condition, the plan's skill ids), so what else a process has
+registered never changes a run's observation sizes. The registry order (follow, carry, climb,
+sit, then plug-ins in the order they are registered) completes a run's list.
+`skill_class` accepts a skill's aliases (`traj`).
 """
 
 from __future__ import annotations
 
 import difflib
+from collections.abc import Iterable, Sequence
 from typing import TypeVar
 
 from detach.skills.base import Skill
@@ -58,8 +62,29 @@ def skill_class(name: str) -> type[Skill]:
 
 
 def skill_index(name: str) -> int:
-    """Index of a skill (or alias) in registry order."""
+    """Index of a skill (or alias) in registry order (a run's tensors use `run_skills`)."""
     return list(_SKILLS).index(canonical_name(name))
+
+
+DEFAULT_RUN_SKILLS: tuple[str, ...] = ("follow", "carry", "climb", "sit")
+"""The skills of a run whose config has no `env.skills` (every run recorded before the key):
+the built-in skills in their order. Fixed, so that such runs keep their observation sizes."""
+
+
+def run_skills(listed: Sequence[str], plan: Iterable[str]) -> tuple[str, ...]:
+    """A run's skills in one-hot order: `listed` (env.skills) in canonical names, or when it is
+    empty `DEFAULT_RUN_SKILLS` and then the plan's other skills in registry order. ValueError
+    when a listed name is unknown or twice, or the plan uses a skill the list lacks."""
+    used = {canonical_name(s) for s in plan}
+    if not listed:
+        return (*DEFAULT_RUN_SKILLS, *(s for s in _SKILLS if s in used and s not in DEFAULT_RUN_SKILLS))
+    names = tuple(canonical_name(s) for s in listed)
+    if len(set(names)) != len(names):
+        raise ValueError(f"a skill is listed twice: {list(listed)}")
+    missing = [s for s in _SKILLS if s in used and s not in names]
+    if missing:
+        raise ValueError(f"the plan uses {', '.join(missing)}, which the list ({', '.join(names)}) lacks")
+    return names
 
 
 def display_name(name: str) -> str:

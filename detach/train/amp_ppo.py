@@ -46,7 +46,7 @@ from rsl_rl.utils.utils import reduce_gradients_in_buckets
 
 from detach.config_schema import AmpCfg
 from detach.config_validate import Builder
-from detach.models.rsl_rl_models import link_shared_trunk
+from detach.models.structured import link_shared_trunk
 from detach.train.discriminator import AmpDiscriminator, ReplayBuffer
 
 REPLAY_KEY = "amp_replay_state"

@@ -13,10 +13,10 @@ import dataclasses
 from detach.character import character_class
 from detach.config_schema import RunConfig
 from detach.envs.rewards import check_reward_terms
-from detach.models.factory import model_class
+from detach.models.registry import model_class
 from detach.sim import SimConfigError, check_backend, check_sim, sim_settings
 from detach.config import ConfigError
-from detach.skills import PlanError, canonical_name
+from detach.skills import PlanError, canonical_name, run_skills
 from detach.skills.plan import compile_plan
 from detach.train.checkpoints import find_init_checkpoint
 from detach.train.teachers import ORACLE, teacher_source
@@ -26,7 +26,9 @@ def complete_run_config(cfg: RunConfig) -> RunConfig:
     """`cfg` checked against the registries (ConfigError naming file, line and key), with
     `model.init_noise_std` resolved from the character when it is null and each teacher of
     `train.teachers` pinned to the absolute checkpoint file it names now (a resume from
-    another directory, or after the teacher's run trained on, learns from the same teacher)."""
+    another directory, or after the teacher's run trained on, learns from the same teacher)
+    and `env.skills` completed (`run_skills`), so that what else the process registered never
+    changes the run's observation sizes."""
     origin = cfg.origin
     try:
         character = character_class(cfg.env.character)
@@ -53,6 +55,10 @@ def complete_run_config(cfg: RunConfig) -> RunConfig:
     if cfg.env.subtask_start_prob > 0 and len(plan) < 2:
         raise origin.error(("env", "subtask_start_prob"), f"starts episodes at later subtasks, but task "
                            f"'{cfg.task.name}' has one subtask; set it to 0")
+    try:
+        skills = run_skills(cfg.env.skills, [sub.skill for sub in plan])
+    except ValueError as exc:
+        raise origin.error(("env", "skills"), str(exc)) from None
     try:
         check_reward_terms(cfg.rewards)
     except ValueError as exc:
@@ -123,4 +129,6 @@ def complete_run_config(cfg: RunConfig) -> RunConfig:
         cfg = dataclasses.replace(cfg, sim=sim_settings(cfg.sim))
     if cfg.model.init_noise_std is None:
         cfg = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, init_noise_std=character.action_std))
+    if cfg.env.skills != skills:  # config.yaml records the run's skills (its observation sizes)
+        cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, skills=skills))
     return cfg

@@ -17,7 +17,7 @@ import torch.nn.functional as F
 from detach.character.body import DOF_NAMES, KEY_BODIES
 from detach.envs.observations import AMP_DIM, NUM_DOF, amp_frame
 from detach.motion import MotionLib, MotionState
-from detach.skills import skill_class, skill_names
+from detach.skills import run_skills, skill_class
 from detach.torch_math import heading_matrix, yaw_of
 
 
@@ -49,10 +49,11 @@ def skill_draw_weights(plan: Sequence[str], with_clips: Sequence[str],
 
 def amp_reference_sampler(lib: MotionLib, steps: int, dt: float, conditional: bool = True,
                           device: str | torch.device = "cpu", plan: Sequence[str] = (),
-                          weights: Mapping[str, float] | None = None,
+                          weights: Mapping[str, float] | None = None, skills: Sequence[str] | None = None,
                           ) -> Callable[[int], tuple[torch.Tensor, torch.Tensor]]:
-    """fn(n) -> (AMP windows [n, steps * d], skill one-hot [n, number of skills])."""
-    names = skill_names()
+    """fn(n) -> (AMP windows [n, steps * d], skill one-hot [n, number of the run's skills]);
+    `skills`: the run's (`LHEnv.skills`; by default those of a config without env.skills)."""
+    names = run_skills((), plan) if skills is None else tuple(skills)
     labels = [skill_class(name).motion_labels for name in names]
     with_clips = [name for name, group in zip(names, labels) if any(label in lib.skills_present for label in group)]
     draw = skill_draw_weights(plan, with_clips, weights or {})

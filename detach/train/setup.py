@@ -128,7 +128,7 @@ def build_runner(cfg: RunConfig, checkpoint_dir: Path | None, device: str, log: 
     if alg.amp_enabled:
         alg.reference_sampler = amp_reference_sampler(
             lib, cfg.env.amp_obs_steps, env.dt, cfg.env.task_specific_discrimination, device,
-            plan=[canonical_name(s) for s in cfg.task.plan], weights=cfg.train.amp.skill_weights)
+            plan=[canonical_name(s) for s in cfg.task.plan], weights=cfg.train.amp.skill_weights, skills=env.skills)
     alg.critic_warmup_iterations = cfg.train.critic_warmup_iterations
     alg.critic_warmup_lr = cfg.train.critic_warmup_learning_rate
     on_stage, detach_models = _stage_hook(runner)

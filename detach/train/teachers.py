@@ -38,7 +38,7 @@ from detach.config_schema import RunConfig
 from detach.envs.lh_env import LHEnv
 from detach.envs.oracle import ORACLE_GROUP
 from detach.run_contract import CONFIG_FILE
-from detach.skills import canonical_name, skill_names
+from detach.skills import canonical_name
 from detach.train.checkpoints import find_init_checkpoint
 from detach.train.trained_actor import load_trained_actor
 from detach.yaml_source import ConfigError
@@ -106,7 +106,7 @@ def load_teachers(cfg: RunConfig, env: LHEnv, device: str | torch.device) -> Tea
     call this before a runner takes the env's first observations."""
     if not cfg.train.teachers:
         return None
-    names = skill_names()
+    names = env.skills
     by_checkpoint: dict[Path | str, int] = {}
     teachers = Teachers([], [], [], cfg.train.teacher_weight)
     for skill, source in cfg.train.teachers.items():

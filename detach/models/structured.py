@@ -1,10 +1,12 @@
-"""The four kinds of network as rsl-rl-lib actor/critic models.
+"""`StructuredModel`, the base of every network of the study as an rsl-rl-lib actor/critic model.
 
 rsl-rl 5.x builds actor and critic as `cls(obs, obs_groups, obs_set, output_dim, **cfg)` and
 calls only the `MLPModel` API (forward with `stochastic_output`, `get_output_log_prob`,
 `output_distribution_params`, `output_entropy`, `get_kl_divergence`, `update_normalization`,
-`reset`, `get_hidden_state`). Each class here is an `MLPModel` whose `get_latent` runs a trunk
-(DETACH, TokenHSI, CML or flat) on the normalised, named observation groups; `self.mlp` (the
+`reset`, `get_hidden_state`). A model kind is one module (`detach.models.mlp`, `cml`, `tokenhsi`,
+`detach_net`, or one outside the package) holding its config class, its trunk and a subclass of
+`StructuredModel`, an `MLPModel` whose `get_latent` runs that trunk on the normalised, named
+observation groups, registered with `detach.models.registry.register_model`; `self.mlp` (the
 adapter MLP `adapter_units`, e.g. [1024, 512]) is the policy head (Gaussian actions through
 rsl-rl's distribution) or the value head.
 
@@ -29,7 +31,7 @@ the sum is the value of the combined reward). `value_heads(obs)` returns [N, K] 
 order, for a trainer that computes GAE and normalises advantages per objective.
 
 Export (`as_jit`, `as_onnx`, rsl-rl's API; `detach-run export`): every kind exports as
-`FlatPolicy`, the deterministic policy on rsl-rl's flat input, the actor's groups
+`detach.models.flat_policy.FlatPolicy`, the deterministic policy on rsl-rl's flat input, the actor's groups
 concatenated in `obs_groups` order (self, env, task; histories time-major, oldest frame
 first), with the input normaliser inside: obs [N, D] -> actions [N, num_actions].
 
@@ -45,29 +47,21 @@ adds its new module behind `head_output` and names that module's state-dict pref
 
 from __future__ import annotations
 
-import copy
 from collections.abc import Iterator, Sequence
-from itertools import chain
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import torch
 import torch.nn as nn
 from rsl_rl.models import MLPModel
-from rsl_rl.modules import EmpiricalNormalization, HiddenState
+from rsl_rl.modules import HiddenState
 from rsl_rl.utils import unpad_trajectories
 from tensordict import TensorDict
 
 from detach.config_schema import ModelCfg
 from detach.config_validate import Builder
 from detach.envs.obs_spec import ObsSpec
-from detach.models.adapters import CooperativePolicy, HeadAdapter
-from detach.models.cml import CMLCfg, CMLTrunk
-from detach.models.detach_net import DetachCfg, DetachFeatures, DetachTrunk
+from detach.models.flat_policy import FlatPolicy
 from detach.models.layout import ObsLayout, no_columns, stack_columns
-from detach.models.losses import combine_aux_losses
-from detach.models.mlp import FlatTrunk, MLPCfg
-from detach.models.tokenhsi import ACTIVE_SKILLS, TokenHSICfg, TokenHSITrunk, TokenHSIValueTrunk
-from detach.skills import canonical_name, skill_index
 
 
 class StructuredModel(MLPModel):
@@ -81,8 +75,10 @@ class StructuredModel(MLPModel):
         value_objectives: names of the value heads (critic only); None = one plain output.
     """
 
-    trunk_class: ClassVar[type[nn.Module]] = FlatTrunk
-    config_class: ClassVar[type[ModelCfg]] = MLPCfg
+    trunk_class: ClassVar[type[nn.Module]]
+    """The trunk, built as `trunk_class(layout, cfg)` unless a kind overrides `make_trunk`."""
+    config_class: ClassVar[type[ModelCfg]]
+    """The kind's config class (a `ModelCfg` subclass): `register_model` maps it to this network."""
     sum_value_heads: bool = True
     """With several value heads, forward returns their weighted sum [N, 1] (stock PPO); a
     trainer with per-objective GAE (`detach.train.amp_ppo.AmpPPO`) sets False to get [N, K]."""
@@ -287,228 +283,10 @@ class StructuredModel(MLPModel):
             yield from self.distribution.parameters()
 
 
-class DetachModel(StructuredModel):
-    """DETACH (and its ablations A1/A2 through `use_env_encoder` / `use_self_encoder`).
-
-    Trainer API for the 3-stage protocol:
-        aux_losses(obs, reuse_forward=False) -> {name: scalar}: unweighted terms on the same
-            normalised inputs as forward; runs encoders + fusion again (never φ). With
-            reuse_forward=True and the very TensorDict object of the last training-mode forward
-            pass with grad (a PPO update: actor(batch.observations, ...), then
-            actor.aux_losses(batch.observations, reuse_forward=True), then ONE backward of
-            PPO loss + aux loss) it reuses that pass's encoder and fusion outputs instead,
-            saving ~1/3 of the aux cost; do not use it if that forward's graph was already
-            backpropagated. Terms:
-            L_env (Decoder_env reconstruction), L_self (temporal prediction), R_decouple
-            (‖Corr(z_env, z_self)‖_F²), MI (correlation-based I(z_env, z_self)), R_temporal,
-            R_semantic_env, R_semantic_self, R_semantic (α/β-weighted sum), L_fusion_quality
-            (‖f_cross - (f_env + f_self)‖² + λ_disentangle·MI), R1, R2 (‖θ - θ*‖², 0 before
-            `snapshot_encoders`), R3 (fusion diversity, `regularizers.r3_mode`). Terms whose
-            module an ablation removed are 0; the keys are always the same.
-        aux_loss(obs, stage, reuse_forward=False) -> scalar: the weighted sum for stage
-            pretrain | fusion | joint
-            (see `losses.combine_aux_losses`).
-        encoder_parameters(), pretrain_parameters(), fusion_parameters(), head_parameters()
-        freeze_encoders(), unfreeze_encoders(), snapshot_encoders(), load_encoders_from(other)
-    Pre-training without PPO: call `update_normalization(obs)` yourself so the inputs are
-    normalised as they will be during RL.
-    """
-
-    trunk_class = DetachTrunk
-    config_class = DetachCfg
-    trunk: DetachTrunk
-    _forward_cache: tuple[TensorDict, dict[str, torch.Tensor], DetachFeatures] | None = None
-
-    def trunk_latent(self, obs: TensorDict, groups: dict[str, torch.Tensor]) -> torch.Tensor:
-        feats = self.trunk.encode(groups)
-        # Keep the encoder/fusion outputs of a training forward pass for aux_losses on the same obs.
-        self._forward_cache = (obs, groups, feats) if torch.is_grad_enabled() and self.training else None
-        return self.trunk.latent(groups, feats)
-
-    def aux_losses(self, obs: TensorDict, reuse_forward: bool = False) -> dict[str, torch.Tensor]:
-        cache, self._forward_cache = self._forward_cache, None
-        if reuse_forward and cache is not None and cache[0] is obs:
-            return self.trunk.aux_losses(cache[1], self.cfg.regularizers, cache[2])
-        return self.trunk.aux_losses(self.normalized_groups(obs), self.cfg.regularizers)
-
-    def aux_loss(self, obs: TensorDict, stage: str, reuse_forward: bool = False) -> torch.Tensor:
-        return combine_aux_losses(self.aux_losses(obs, reuse_forward), stage, self.cfg.regularizers)
-
-    def encoder_parameters(self) -> Iterator[nn.Parameter]:
-        """θ_env and θ_self (Φ_env, Φ_self)."""
-        return chain.from_iterable(m.parameters() for m in self.trunk.encoder_modules())
-
-    def pretrain_parameters(self) -> Iterator[nn.Parameter]:
-        """Stage 1: the encoders plus Decoder_env, Decoder_self and f_pred."""
-        mods = self.trunk.encoder_modules() + self.trunk.pretrain_head_modules()
-        return chain.from_iterable(m.parameters() for m in mods)
-
-    def fusion_parameters(self) -> Iterator[nn.Parameter]:
-        """Stage 2 (besides the heads): P_env, P_self, fusion, tokens and φ."""
-        return self.trunk.fusion_parameters()
-
-    def freeze_encoders(self) -> None:
-        """Stage 2: θ_env, θ_self get requires_grad=False (Adam skips params without grad)."""
-        for p in self.encoder_parameters():
-            p.requires_grad_(False)
-
-    def unfreeze_encoders(self) -> None:
-        for p in self.encoder_parameters():
-            p.requires_grad_(True)
-
-    def snapshot_encoders(self) -> None:
-        """Record θ*_env, θ*_self (call at the end of pre-training); R1/R2 measure drift from them."""
-        self.trunk.snapshot_encoders()
-
-    @torch.no_grad()
-    def load_encoders_from(self, other: DetachModel) -> None:
-        """Copy encoders, their pre-training heads and anchors from another DETACH model (actor -> critic)."""
-        t, o = self.trunk, other.trunk
-        names = ("env_encoder", "env_decoder", "self_encoder", "self_decoder", "predictor", "env_anchor", "self_anchor")
-        for name in names:
-            mine, theirs = getattr(t, name), getattr(o, name)
-            if (mine is None) != (theirs is None):
-                raise ValueError(f"cannot copy {name}: present in only one of the two models")
-            if mine is not None:
-                mine.load_state_dict(theirs.state_dict())
-
-
 def link_shared_trunk(actor: nn.Module, critic: nn.Module) -> None:
     """Give a shared-trunk critic the actor's trunk; a no-op for any other pair."""
     if getattr(critic, "reads_actor_trunk", False) and getattr(critic, "owns_trunk", False):
         critic.share_trunk_of(actor)
-
-
-class TokenHSIModel(StructuredModel):
-    """TokenHSI (`detach.models.tokenhsi`): tokenizers, masked transformer, action-token head;
-    as a critic, a separate MLP on the `critic` group (`critic_units`).
-
-    Adapter stage (`adapt_skills`, actor only): TokenHSI's way of learning skills after the
-    base is trained. Frozen (requires_grad False, never stepped): the proprioception tokenizer,
-    the task tokenizers of the other skills, the action token, the transformer, the action head
-    and the input normaliser (its statistics stay those of the previous stage, and the adapted
-    skills' tokenizers read through it too). Trained: the adapted skills' task tokenizers,
-    the `HeadAdapter` (new, zero-initialised: the first actions are the base policy's) and the
-    action std (PPO's exploration noise; TokenHSI keeps it constant in both stages). The
-    critic is not frozen: it starts from the previous stage's critic (same input, same shape)
-    and trains fully, where TokenHSI's adapter stage builds a fresh critic; the critic only
-    shapes the advantages, and a warm start keeps `train.init_from` a plain load.
-    """
-
-    trunk_class = TokenHSITrunk
-    config_class = TokenHSICfg
-    cfg: TokenHSICfg
-
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self.adapter: HeadAdapter | None = None
-        if self.cfg.adapt_skills and self.distribution is not None:
-            self.adapter = HeadAdapter(self.mlp)
-            adapted = [self.trunk.task_tokenizers[canonical_name(s)] for s in self.cfg.adapt_skills]
-            trained = {id(p) for m in (*adapted, self.adapter, self.distribution) for p in m.parameters()}
-            for p in self.parameters():
-                if id(p) not in trained:
-                    p.requires_grad_(False)
-
-    @classmethod
-    def make_trunk(cls, layout: ObsLayout, cfg: ModelCfg, value_only: bool) -> nn.Module:
-        return TokenHSIValueTrunk(layout, cfg) if value_only else TokenHSITrunk(layout, cfg)
-
-    @classmethod
-    def head_units(cls, cfg: ModelCfg, value_only: bool) -> tuple[int, ...]:
-        return tuple(cfg.critic_units if value_only else cfg.adapter_units)
-
-    def normalized_groups(self, obs: TensorDict) -> dict[str, torch.Tensor]:
-        groups = super().normalized_groups(obs)
-        if "task" in self.layout.groups:
-            groups[ACTIVE_SKILLS] = obs["task"] > 0.5
-        return groups
-
-    def head_output(self, latent: torch.Tensor, obs: TensorDict) -> torch.Tensor:
-        return self.mlp(latent) if self.adapter is None else self.adapter(self.mlp, latent)
-
-    def update_normalization(self, obs: TensorDict) -> None:
-        if self.adapter is None:
-            super().update_normalization(obs)
-
-    def new_parameter_prefixes(self) -> tuple[str, ...]:
-        return () if self.adapter is None else ("adapter.",)
-
-    def start_from_loaded(self) -> list[str]:
-        """After `train.init_from` loaded the source's weights and observation statistics (before
-        they are merged): `tokenizer_from`'s copies, for each skill whose one-hot entry the
-        source's statistics never saw set (mean 0: the source never ran it, so its tokenizer
-        never trained). Returns "skill <- source" for each copy made."""
-        norm = self.obs_normalizer
-        if not self.cfg.tokenizer_from or not isinstance(norm, EmpiricalNormalization) \
-                or self.distribution is None:
-            return []
-        mean, scale = norm._mean.reshape(-1), norm._std.reshape(-1) + norm.eps
-        env = self.layout.columns("env")[:, -1]
-        task = self.layout.columns("task")[:, 0]
-        done = []
-        for skill, source in self.cfg.tokenizer_from.items():
-            if float(mean[task[skill_index(skill)]]) > 0.0:
-                continue  # the source ran it: its own tokenizer is trained
-            self.trunk.copy_task_tokenizer(skill, source, mean[env], scale[env])
-            done.append(f"{canonical_name(skill)} <- {canonical_name(source)}")
-        return done
-
-
-class CMLModel(StructuredModel):
-    """CML (`detach.models.cml`): GRU over the observation window; with value_objectives, its
-    multi-objective critic.
-
-    Incremental learning (`incremental`, actor only; CML's meta policy + cooperative policy,
-    implemented from the CML paper's description, its public code does not contain it): this
-    network is the meta policy, loaded from the previous stage (`train.init_from`) and frozen
-    (parameters and input normaliser); a `CooperativePolicy` (new, own normaliser, trained)
-    mixes its action in per action dimension, starting with the mix equal to the meta action.
-    The action std stays trainable (PPO's exploration noise; CML's is state-dependent, ours
-    rsl-rl's state-independent one). The critic is not frozen: it starts from the previous
-    stage's multi-objective critic and trains fully.
-    """
-
-    trunk_class = CMLTrunk
-    config_class = CMLCfg
-    cfg: CMLCfg
-
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self.cooperative: CooperativePolicy | None = None
-        if self.cfg.incremental and self.distribution is not None:
-            meta = [p for p in self.parameters() if not any(p is q for q in self.distribution.parameters())]
-            for p in meta:
-                p.requires_grad_(False)
-            self.cooperative = CooperativePolicy(self.layout, self.cfg, self.distribution.output_dim)
-
-    def _raw_input(self, obs: TensorDict) -> torch.Tensor:
-        return torch.cat([obs[g] for g in self.obs_groups], dim=-1)
-
-    def head_output(self, latent: torch.Tensor, obs: TensorDict) -> torch.Tensor:
-        meta = self.mlp(latent)
-        return meta if self.cooperative is None else self.cooperative.mix(meta, self._raw_input(obs))
-
-    def mixing_weights(self, obs: TensorDict) -> torch.Tensor:
-        """w [N, num_actions] in [0, 1]: the cooperative policy's share of each action dimension."""
-        if self.cooperative is None:
-            raise ValueError("mixing_weights: this CML model is not incremental")
-        return self.cooperative(self._raw_input(obs))[1]
-
-    def update_normalization(self, obs: TensorDict) -> None:
-        if self.cooperative is None:
-            super().update_normalization(obs)
-        else:
-            self.cooperative.update_normalization(self._raw_input(obs))
-
-    def new_parameter_prefixes(self) -> tuple[str, ...]:
-        return () if self.cooperative is None else ("cooperative.",)
-
-
-class MLPBaselineModel(StructuredModel):
-    """Plain MLP on the concatenated normalised groups (same as rsl-rl's MLPModel)."""
-
-    trunk_class = FlatTrunk
 
 
 def plain_configs(obs_spec: ObsSpec | dict, model: ModelCfg | dict) -> tuple[ObsSpec, ModelCfg]:
@@ -525,46 +303,3 @@ def plain_configs(obs_spec: ObsSpec | dict, model: ModelCfg | dict) -> tuple[Obs
         model = builder.build(cls, model, ())
     return obs_spec, model
 
-
-class FlatPolicy(nn.Module):
-    """A `StructuredModel` actor as rsl-rl exports policies: the deterministic action of the
-    flat observation `obs` [N, D] (the actor's groups concatenated in `obs_groups` order, raw:
-    the input normaliser is inside). A deep copy on the CPU in eval mode; `groups`, `dims` and
-    `history` describe the layout of `obs` (`detach.runs.export` writes them beside the file)."""
-
-    is_recurrent: bool = False
-
-    def __init__(self, model: StructuredModel, verbose: bool = False) -> None:
-        super().__init__()
-        if model.distribution is None:
-            raise ValueError("FlatPolicy: export the actor, not the critic")
-        for cache in ("_latent_cache", "_forward_cache"):  # a training pass's graph cannot be copied
-            if cache in model.__dict__:
-                setattr(model, cache, None)
-        self.model = copy.deepcopy(model).cpu().eval()
-        self.verbose = verbose
-        self.groups = tuple(model.obs_groups)
-        self.dims = tuple(model.layout.dim(g) for g in self.groups)
-        self.history = {g: model.layout.history_shape(g) for g in self.groups if g in ("self", "env")}
-        self.input_size = sum(self.dims)
-        self.num_actions = int(model.distribution.output_dim)
-        self.eval()
-
-    def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        groups = dict(zip(self.groups, torch.split(obs, list(self.dims), dim=-1)))
-        return self.model(groups)
-
-    def get_dummy_inputs(self) -> tuple[torch.Tensor]:
-        return (torch.zeros(2, self.input_size),)
-
-    @property
-    def input_names(self) -> list[str]:
-        return ["obs"]
-
-    @property
-    def output_names(self) -> list[str]:
-        return ["actions"]
-
-    @torch.jit.unused
-    def reset(self) -> None:
-        """No recurrent state between calls (CML's GRU reads the window in the input)."""
