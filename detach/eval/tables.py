@@ -30,7 +30,7 @@ from typing import Callable, Iterable, Sequence
 
 from detach.eval.aids import label
 from detach.eval.metrics import LEARNED_SKILLS, NOVEL_SKILLS, egr, sgr, success_rate, wilson_interval
-from detach.run_contract import SGR_VARIANTS, EvalResult
+from detach.runfolder.eval_result import SGR_VARIANTS, EvalResult
 from detach.skills import canonical_name, display_name, skill_names
 
 METHOD_NAMES = {"cml": "CML", "tokenhsi": "TokenHSI", "detach": "DETACH",
