@@ -180,15 +180,14 @@ class RunReader:
             return info
 
     def _summary(self, status: Status | None) -> tuple[RunSummary | None, str | None]:
-        """(the run's summary, why config.yaml is unreadable): status.json's summary, else
-        config.yaml's (a folder of an earlier version), as `RunFolder.summary` reads it; a
-        missing config.yaml is a problem either way."""
+        """(the run's summary, why config.yaml is unreadable), as `RunFolder.summary` reads
+        them: status.json's summary, else config.yaml's (a folder of an earlier version);
+        config.yaml is checked either way (re-read only when it changed)."""
         config_path = self.run.config_path
-        if status is not None and status.summary is not None:
-            missing = _stat_key(config_path) is None
-            return status.summary, f"{config_path.name} missing" if missing else None
         config = self._read(config_path, lambda _path: read_config_summary(self.path))
-        return config.value, None if config.value else (config.problem or f"{config_path.name} unreadable")
+        if config.value is None:
+            return None, config.problem or f"{config_path.name} unreadable"
+        return (status.summary if status is not None and status.summary else config.value), None
 
     def _read_evals(self, info: RunInfo) -> list[str]:
         problems, versions = [], []

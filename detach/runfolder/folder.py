@@ -175,14 +175,19 @@ class RunFolder:
 
     def summary(self) -> RunSummary:
         """Task, model, seed and samples per iteration: status.json's summary, else (a folder of
-        an earlier version) config.yaml's (`detach.runfolder.summary`). OSError if neither file
-        can be read, ValueError if the one read is malformed."""
+        an earlier version) config.yaml's (`detach.runfolder.summary`). config.yaml is read
+        either way, as the dashboard's index reads it: a run folder whose config.yaml is
+        missing, refused or malformed is not summarised (OSError or ValueError for status.json,
+        ConfigError, one line, for config.yaml)."""
         status = self.status()
-        if status.summary is None:
-            return read_config_summary(self.path)
-        if not self.config_path.exists():  # the dashboard's index says so too
-            raise FileNotFoundError(f"{self.config_path}: missing")
-        return status.summary
+        try:
+            from_config = read_config_summary(self.path)
+        except FileNotFoundError:
+            raise ConfigError("file not found", str(self.config_path)) from None
+        except ValueError as exc:  # refused (a link out, too large, an alias bomb) or malformed
+            raise ConfigError(str(exc) if isinstance(exc, run_files.RunFileError) else
+                              f"{self.config_path}: {exc}") from None
+        return status.summary or from_config
 
     def run_id(self) -> str:
         """The run's id from status.json, which a copy of the folder shares; the folder name for

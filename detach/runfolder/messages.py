@@ -54,9 +54,9 @@ def need_number(data: Any, key: str, where: str, optional: bool = False, finite:
 # ------------------------------------------------------------------------------- status.json
 @dataclass(frozen=True)
 class RunSummary:
-    """What a run is, for lists and tables: written into status.json when the run folder is
-    made, so that readers need not parse config.yaml (`detach.runfolder.summary` derives it
-    from config.yaml for folders of earlier versions)."""
+    """What a run is, for `detach-run list` and the dashboard: written into status.json when
+    the run folder is made, from the resolved config (`detach.runfolder.summary` derives it from
+    config.yaml for folders of earlier versions, with the project's bounded YAML loader)."""
 
     task: str
     model: str
