@@ -9,7 +9,7 @@ memory of a real `detach-dashboard` process serving that folder to one browser. 
 (issue 22): 200 runs within the same order of magnitude as 20 (ratio < 10).
 
 With --mb, also the old large-log measurements: a live run whose log.mcap holds that many MB,
-read by the incremental reader (server.log_tail) against the reference reader.
+read by the incremental reader (detach.runfolder.log_tail) against the reference reader.
 
 Run: .venv/bin/python benchmarks/bench_dashboard.py [--sizes 20 200] [--mb 0] [--keep DIR]
 """
@@ -35,9 +35,12 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from detach.character.body import BODY_NAMES  # noqa: E402
-from detach.run_contract import STATUS_FILE, EpisodeFrame  # noqa: E402
-from detach.runs.mcap_log import RunLogWriter, read_episodes, read_metrics  # noqa: E402
-from server.log_tail import LogTail  # noqa: E402
+from detach.runfolder.log_tail import LogTail  # noqa: E402
+from detach.runfolder.mcap_reader import read_episodes, read_metrics  # noqa: E402
+from detach.runfolder.messages import EpisodeFrame  # noqa: E402
+from detach.runfolder.names import STATUS_FILE  # noqa: E402
+from detach.runs.mcap_log import RunLogWriter  # noqa: E402
+from server.episode import load_episode  # noqa: E402
 from server.run_index import RunIndex  # noqa: E402
 from tests.dashboard_fixtures import HeadlessClient, make_run, start_dashboard  # noqa: E402
 
@@ -174,13 +177,13 @@ def big_log_rows(tmp: Path, megabytes: float) -> list[tuple[str, str]]:
     path = run.log_path
     t_ref, ref = timed(lambda: read_metrics(path))
     t_tail, tail = timed(lambda: (lambda t: (t.refresh(), t)[1])(LogTail(path)))
-    t_newest, ep = timed(tail.load_episode)
+    t_newest, ep = timed(lambda: load_episode(tail))
     t_ref_eps, _ = timed(lambda: read_episodes(path))
     size = path.stat().st_size / 1e6
     return [(f"metrics of a {size:.0f} MB log, LogTail first read", f"{t_tail * 1e3:.0f} ms"),
-            ("same, mcap_log.read_metrics (reference)", f"{t_ref * 1e3:.0f} ms"),
+            ("same, mcap_reader.read_metrics (reference)", f"{t_ref * 1e3:.0f} ms"),
             ("newest episode, cold", f"{t_newest * 1e3:.1f} ms ({ep.num_frames} frames)"),
-            ("all episodes, mcap_log.read_episodes (reference)", f"{t_ref_eps:.2f} s")]
+            ("all episodes, mcap_reader.read_episodes (reference)", f"{t_ref_eps:.2f} s")]
 
 
 def main() -> None:

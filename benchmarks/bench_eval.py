@@ -35,14 +35,15 @@ def main() -> None:
 
     from detach.envs.lh_env import make_env
     from detach.eval.episodes import run_evaluation
-    from detach.runs.folder import RunFolder
+    from detach.runfolder.folder import RunFolder
     from detach.runs.policy import load_policy
     from detach.runs.session import eval_config
+    from detach.train.checkpoints import newest_readable_checkpoint
     from detach.train.setup import apply_torch_threads, prepare_assets, seed_everything
 
     run = RunFolder(args.run)
     base = eval_config(run.config(), args.task)
-    checkpoint = run.usable_checkpoint("cpu")
+    checkpoint = newest_readable_checkpoint(run.path, "cpu")
     prepare_assets(base.task)
     apply_torch_threads(base)
     rows = []
@@ -76,7 +77,8 @@ def record(run, cfg, checkpoint: Path, trials: int) -> tuple[float, float, float
     log), as `detach-run eval` does on the run's own task."""
     from detach.envs.lh_env import make_env
     from detach.eval.episodes import run_evaluation
-    from detach.runs.mcap_log import RunLogWriter, iter_messages
+    from detach.runfolder.mcap_reader import iter_messages
+    from detach.runs.mcap_log import RunLogWriter
     from detach.runs.policy import load_policy
     from detach.train.setup import seed_everything
 

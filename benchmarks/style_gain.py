@@ -20,7 +20,7 @@ from pathlib import Path
 
 import torch
 
-from detach.runs.folder import RunFolder
+from detach.runfolder.folder import RunFolder
 from detach.train.setup import build_runner
 
 

@@ -19,8 +19,8 @@ from typing import Callable, Sequence
 from detach.config import ConfigError, dump, resolve
 from detach.config_schema import RunConfig
 from detach.eval.trial_sets import MIN_TEST_SEED_OFFSET
-from detach.run_contract import EXPORT_FORMATS
-from detach.runs.folder import RunFolder, run_folder_name
+from detach.runfolder.names import EXPORT_FORMATS
+from detach.runfolder.folder import RunFolder, run_folder_name
 
 EXIT_USAGE = 2
 
@@ -649,7 +649,7 @@ def _take_up(run: RunFolder, args: argparse.Namespace, cfg: RunConfig, new: RunC
     """Write the run's config if `--resume` changed it, then train on from `checkpoint` (None:
     from iteration 0) and evaluate, as the run's own job."""
     if new != cfg:
-        from detach.runs.folder import atomic_write_text
+        from detach.runfolder.atomic import atomic_write_text
 
         atomic_write_text(run.config_path, dump(new))
     from detach.runs.job import run_job
@@ -704,9 +704,9 @@ def _resume_checkpoint(run: RunFolder, cfg: RunConfig, rename: bool = True) -> P
     """The newest checkpoint that reads back whole and is of the run's model. Newer files that
     do not read back (truncated, corrupt) are renamed *.corrupt: the resumed run writes
     those iterations again, and no reader should pick the broken file meanwhile."""
-    from detach.train.checkpoints import check_model, read_checkpoint
+    from detach.train.checkpoints import check_model, newest_readable_checkpoint, read_checkpoint
 
-    checkpoint = run.usable_checkpoint()
+    checkpoint = newest_readable_checkpoint(run.path)
     if checkpoint is None:
         raise ConfigError("no checkpoint of the run reads back whole (all truncated or corrupt)",
                           str(run.checkpoints))
@@ -722,7 +722,7 @@ def _resume_checkpoint(run: RunFolder, cfg: RunConfig, rename: bool = True) -> P
 def _refuse_if_alive(run: RunFolder) -> None:
     """Two processes training one run folder would corrupt it. A pid of this host is looked
     up; one of another host (shared storage) is trusted while its heartbeat is fresh."""
-    from detach.runs.folder import STALE_AFTER_S, this_host
+    from detach.runfolder.liveness import STALE_AFTER_S, this_host
 
     if not run.owner_alive():
         return
@@ -750,7 +750,7 @@ def _extended_config(run: RunFolder, overrides: Sequence[str], checkpoint: Path)
     import dataclasses
 
     from detach.config import load_run_config
-    from detach.run_contract import checkpoint_iteration
+    from detach.runfolder.names import checkpoint_iteration
     from detach.train.schedule import resumed_stages
 
     for text in overrides:

@@ -11,7 +11,7 @@ import argparse
 from pathlib import Path
 
 from detach import cli
-from detach.runs.folder import find_runs
+from detach.runfolder.folder import find_runs
 
 
 def main(runs: Path, iterations: int) -> None:

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from detach import cli
 from detach.eval.tables import skills_table
-from detach.runs.folder import find_runs
+from detach.runfolder.folder import find_runs
 
 HERE = Path(__file__).resolve().parent
 

@@ -17,7 +17,7 @@ from typing import Any, Callable
 import numpy as np
 import viser
 
-from detach.run_contract import METRICS_TOPIC
+from detach.runfolder.names import METRICS_TOPIC
 from server.curves import X_AXES, Chart, chart, curve_groups, key_filter, legend_markdown, matching, \
     run_curves, uplot_options
 from server.run_index import MetricSeries

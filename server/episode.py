@@ -1,4 +1,4 @@
-"""One episode of /episode/bodies frames as arrays, built from its messages.
+"""One episode of /episode/bodies frames (`EpisodeFrame`) as arrays, built from its messages.
 
 Kept apart from the log reader so that it can be tested and reused on plain message lists.
 """
@@ -6,11 +6,12 @@ Kept apart from the log reader so that it can be tested and reused on plain mess
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
 from detach.eval.task_markers import PathMemo, TaskState, task_state
+from detach.runfolder.log_tail import EpisodeKey, LogTail
+from detach.runfolder.messages import EpisodeFrame
 
 
 @dataclass
@@ -40,9 +41,18 @@ class Episode:
         return len(self.times)
 
 
-def episode_from_frames(number: int, frames: list[dict[str, Any]], trial: int = 0
-                        ) -> Episode | None:
-    """Stack one episode's /episode/bodies messages (file order) into arrays.
+def load_episode(log: LogTail, key: EpisodeKey | int | None = None) -> Episode | None:
+    """The recorded episode `key` of a tailed log (`LogTail.episode_frames`; default: the
+    newest) as arrays; None when the log holds no frame of it."""
+    found = log.episode_frames(key)
+    if found is None:
+        return None
+    (number, trial), frames = found
+    return episode_from_frames(number, frames, trial=trial)
+
+
+def episode_from_frames(number: int, frames: list[EpisodeFrame], trial: int = 0) -> Episode | None:
+    """Stack one episode's /episode/bodies frames (file order) into arrays.
 
     A log can hold the same episode number more than once (each evaluation of a run
     records its episode 0 again): a frame number that does not increase starts a new
@@ -50,38 +60,34 @@ def episode_from_frames(number: int, frames: list[dict[str, Any]], trial: int = 
     """
     start, last = 0, None
     for i, m in enumerate(frames):
-        f = m.get("frame", i)
-        if last is not None and isinstance(f, int) and f <= last:
+        if last is not None and m.frame <= last:
             start = i
-        last = f if isinstance(f, int) else last
-    by_frame: dict[int, dict[str, Any]] = {}
-    for i, m in enumerate(frames[start:]):
-        by_frame[int(m.get("frame", i))] = m
+        last = m.frame
+    by_frame = {m.frame: m for m in frames[start:]}
     ordered = [by_frame[k] for k in sorted(by_frame)]
-    bodies = list(ordered[-1].get("bodies", []))
-    good = [m for m in ordered if len(m.get("pos", ())) == len(bodies)
-            and len(m.get("quat", ())) == len(bodies)]
+    bodies = list(ordered[-1].bodies)
+    good = [m for m in ordered if len(m.pos) == len(bodies) and len(m.quat) == len(bodies)]
     if not good or not bodies:
         return None
-    pos = np.asarray([m["pos"] for m in good], dtype=np.float64).reshape(len(good), -1, 3)
-    quat = np.asarray([m["quat"] for m in good], dtype=np.float64).reshape(len(good), -1, 4)
-    times = np.asarray([float(m.get("time", i / 30.0)) for i, m in enumerate(good)])
+    pos = np.asarray([m.pos for m in good], dtype=np.float64).reshape(len(good), -1, 3)
+    quat = np.asarray([m.quat for m in good], dtype=np.float64).reshape(len(good), -1, 4)
+    times = np.asarray([float(m.time) for m in good])
     objects: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    names = {o.get("name") for m in good for o in m.get("objects", ()) if o.get("name")}
+    names = {o.get("name") for m in good for o in m.objects if o.get("name")}
     for name in sorted(names):
         p = np.full((len(good), 3), np.nan)
         q = np.full((len(good), 4), np.nan)
         for i, m in enumerate(good):
-            for o in m.get("objects", ()):
+            for o in m.objects:
                 if o.get("name") == name:
                     p[i] = o.get("pos", p[i])
                     q[i] = o.get("quat", (1.0, 0.0, 0.0, 0.0))
         objects[name] = (_fill_forward(p), _fill_forward(q))
     paths = PathMemo()
-    task = [task_state(m, pos[i, 0], paths.update(0, m)) for i, m in enumerate(good)]
-    return Episode(number, bodies, times, pos, quat,
-                   np.asarray([int(m.get("subtask", 0)) for m in good]),
-                   [str(m.get("skill", "")) for m in good], objects, trial, task)
+    fields = [{k: v for k, v in vars(m).items() if v is not None} for m in good]
+    task = [task_state(f, pos[i, 0], paths.update(0, f)) for i, f in enumerate(fields)]
+    return Episode(number, bodies, times, pos, quat, np.asarray([m.subtask for m in good]),
+                   [m.skill for m in good], objects, trial, task)
 
 
 def _fill_forward(a: np.ndarray) -> np.ndarray:

@@ -16,8 +16,8 @@ from typing import Any
 
 import viser
 
-from server.episode import Episode
-from server.log_tail import EpisodeKey
+from detach.runfolder.log_tail import EpisodeKey
+from server.episode import Episode, load_episode
 from server.markup import md_text
 from server.replay import Replay
 from server.scene_view import SceneView, check_episode
@@ -92,7 +92,7 @@ def replay_panel(s: Session) -> Panel:
     replay = Replay(draw, on_frame)
     s.dashboard.ticker.add(replay)
 
-    def load_episode(run: str, choice: str | None) -> Episode | None:
+    def chosen_episode(run: str, choice: str | None) -> Episode | None:
         reader = s.index.reader(run)
         shown["problem"] = None
         if reader is None:
@@ -100,7 +100,7 @@ def replay_panel(s: Session) -> Panel:
         if choice == NONE:
             return None  # the log has no episode
         try:
-            ep = reader.log.load_episode(shown["keys"].get(choice))  # None: the newest
+            ep = load_episode(reader.log, shown["keys"].get(choice))  # None: the newest
             if ep is not None:
                 check_episode(ep)
             return ep
@@ -115,7 +115,7 @@ def replay_panel(s: Session) -> Panel:
     def open_episode(slot: str, keep_time: bool = False) -> None:
         run = shown[slot]
         choice = chosen(episode_dd, episode_dd_options(), NEWEST) if slot == "a" else NEWEST
-        ep = load_episode(run, choice) if run is not None else None
+        ep = chosen_episode(run, choice) if run is not None else None
         scene = view.a if slot == "a" else view.b
         live = bool(run in s.infos and s.infos[run].live)
         if slot == "a":

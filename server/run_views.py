@@ -12,7 +12,7 @@ from typing import Any, Sequence
 
 import yaml
 
-from detach.runs.files import parse_yaml
+from detach.runfolder.files import parse_yaml
 from server.markup import md_code, md_text
 from server.run_index import RunInfo
 

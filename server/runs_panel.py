@@ -7,7 +7,7 @@ import threading
 
 import viser
 
-from detach.run_contract import CONFIG_FILE, STDOUT_FILE
+from detach.runfolder.names import CONFIG_FILE, STDOUT_FILE
 from server.run_views import (
     GROUP_BY, config_diff, diff_markdown, filter_runs, runs_table, status_markdown,
 )
@@ -47,7 +47,7 @@ def runs_panel(s: Session) -> Panel:
         status = gui.add_markdown("")
         diff_dd = gui.add_dropdown("Diff with", (NOTHING,))
         diff = gui.add_markdown("")
-        with gui.add_folder(CONFIG_FILE, expand_by_default=False):
+        with gui.add_folder(f"{CONFIG_FILE}", expand_by_default=False):
             config = gui.add_markdown("")
         with gui.add_folder(f"{STDOUT_FILE} (last lines)", expand_by_default=False):
             stdout = gui.add_markdown("")

@@ -16,7 +16,7 @@ from typing import Any, Callable, ContextManager, Sequence
 import numpy as np
 
 from detach.eval.task_markers import Marker, Text, scene_targets, task_markers
-from detach.run_contract import SceneTarget
+from detach.runfolder.messages import SceneTarget
 from server.episode import Episode
 from server.marker_view import MarkerView
 from server.scene_geometry import (

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 from detach.eval.tables import TABLES, Cell, Table
-from detach.run_contract import EvalResult
+from detach.runfolder.eval_result import EvalResult
 from server.paper_reference import SWAP_NOTE, reference_rows
 
 LABEL_KEYS = ("experiment", "method")

@@ -24,8 +24,9 @@ from detach.config import resolve
 from detach.character import build_character_model
 from detach.character.body import BODY_NAMES
 from detach.eval.report import TrialOutcome, summarize
-from detach.run_contract import EpisodeFrame, SceneMessage
-from detach.runs.folder import RunFolder, atomic_write_json
+from detach.runfolder.messages import EpisodeFrame, SceneMessage
+from detach.runfolder.atomic import atomic_write_json
+from detach.runfolder.folder import RunFolder
 from detach.runs.mcap_log import RunLogWriter
 
 ROOT = Path(__file__).resolve().parents[1]

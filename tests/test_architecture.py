@@ -1,6 +1,6 @@
 """The layer order of docs/ARCHITECTURE.md, enforced on every import in the code.
 
-Data flows one way: config -> assets -> character -> scene/sim/motion -> skills -> envs ->
+Data flows one way: config -> runfolder -> assets -> character -> scene/sim/motion -> skills -> envs ->
 models -> train -> eval -> runs -> cli/server. A module may import its own layer or a lower
 one, never a higher one, and no set of modules may import each other in a cycle. Every import
 counts, also those inside functions and under TYPE_CHECKING. `from a.b import c` depends on
@@ -18,7 +18,8 @@ PACKAGES = ("detach", "scene_builder", "server")
 
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("config", ("detach", "detach.yaml_source", "detach.config_validate", "detach.config_schema",
-                "detach.config", "detach.torch_math", "detach.host_sync", "detach.run_contract")),
+                "detach.config", "detach.torch_math", "detach.host_sync")),
+    ("runfolder", ("detach.runfolder",)),
     ("assets", ("scene_builder",)),
     ("character", ("detach.character",)),
     ("scene", ("scene_builder.scene", "detach.sim", "detach.motion")),
@@ -238,3 +239,110 @@ def test_no_model_table_outside_the_registry() -> None:
             if isinstance(node, ast.Constant) and isinstance(node.value, str) and labels.get(node.value, name) != name:
                 found.append(f"{name}:{node.lineno}: the label {node.value!r} of {labels[node.value]}")
     assert not found, "\n".join(found)
+
+
+
+# ------------------------------------------------------------------ the run folder has one owner
+RUN_FOLDER_PACKAGE = "detach.runfolder"
+RUN_FILE_PATH = re.compile(r"\S*(?:config\.yaml|status\.json|stdout\.log|log\.mcap|eval\S*\.json|selection\.json"
+                           r"|provenance\.json|agent\.yaml|(?:model|amp_replay)_\S*\.pt)")
+"""A string that is a path ending in one of a run folder's files (`detach.runfolder.names`); an
+f-string counts with its fields as `*` (f"model_{it}.pt"). Prose naming a file has spaces."""
+RUN_NAME_CONSTANTS = {"CONFIG_FILE", "STATUS_FILE", "STDOUT_FILE", "LOG_FILE", "CHECKPOINT_DIR", "EVAL_FILE",
+                      "EVAL_GLOB", "SELECTION_FILE", "PROVENANCE_FILE", "PARAMS_DIR", "AGENT_PARAMS_FILE",
+                      "EXPORT_DIR", "RUN_MARKERS", "REPLAY_PREFIX"}
+
+
+def _outside_run_folder_package() -> dict[str, Path]:
+    return {n: p for n, p in modules().items()
+            if n != RUN_FOLDER_PACKAGE and not n.startswith(RUN_FOLDER_PACKAGE + ".")}
+
+
+def _docstrings(tree: ast.AST) -> set[int]:
+    found = set()
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if isinstance(body, list):
+            for stmt in body:  # a module's, class's or function's docstring, and attribute docstrings
+                value = stmt.value if isinstance(stmt, ast.Expr) else None
+                if isinstance(value, ast.Constant) and isinstance(value.value, str):
+                    found.add(id(value))
+    return found
+
+
+def _labels(tree: ast.AST) -> set[int]:
+    """Names used only to be printed: inside an f-string's replacement fields."""
+    return {id(n) for f in ast.walk(tree) if isinstance(f, ast.FormattedValue) for n in ast.walk(f.value)}
+
+
+def _string_of(node: ast.AST) -> str | None:
+    if isinstance(node, ast.Constant) and isinstance(node.value, str):
+        return node.value
+    if isinstance(node, ast.JoinedStr):
+        return "".join(v.value if isinstance(v, ast.Constant) else "*" for v in node.values)
+    return None
+
+
+def test_only_the_run_folder_package_names_the_run_folders_files() -> None:
+    """Every reader of a run folder (the CLI's list and tables, evaluation, the dashboard) goes
+    through `detach.runfolder`, so they cannot disagree about what a run holds: no module outside
+    it writes a path to a run file (prose and docstrings may name one), nor uses the package's
+    name constants except to print them (in an f-string)."""
+    found = []
+    for name, path in sorted(_outside_run_folder_package().items()):
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        docs, labels = _docstrings(tree), _labels(tree)
+        for node in ast.walk(tree):
+            where = f"{path.relative_to(ROOT)}:{getattr(node, 'lineno', '?')}"
+            text = _string_of(node) if id(node) not in docs else None
+            if text is not None and RUN_FILE_PATH.fullmatch(text):
+                found.append(f"{where}: {text[:60]!r}")
+            elif isinstance(node, (ast.Name, ast.Attribute)) and id(node) not in labels:
+                ident = node.id if isinstance(node, ast.Name) else node.attr
+                if ident in RUN_NAME_CONSTANTS:
+                    found.append(f"{where}: {ident} used outside a label")
+    assert not found, "run-folder file names outside detach.runfolder:\n" + "\n".join(found)
+
+
+def _imports_re(path: Path) -> bool:
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    return any(isinstance(n, ast.Import) and any(a.name == "re" for a in n.names) or
+               isinstance(n, ast.ImportFrom) and n.module == "re" for n in ast.walk(tree))
+
+
+def test_no_regular_expression_reads_config_yaml() -> None:
+    """config.yaml is YAML: read with the project's loader, never by pattern (the dashboard
+    once matched `task_name:` lines and missed a config in flow style). The modules that read
+    a run's config.yaml (they name `CONFIG_FILE`, `config_path` or `config_text`) import no `re`."""
+    readers = []
+    for name, path in sorted(modules().items()):
+        text = path.read_text(encoding="utf-8")
+        if re.search(r"\b(CONFIG_FILE|config_path|config_text)\b", text) and _imports_re(path):
+            readers.append(name)
+    assert not readers, f"modules that read config.yaml and import re: {readers}"
+
+
+SERVER_DETACH_IMPORTS = ("detach.eval.task_markers", "detach.eval.tables", "detach.runs.play", "detach.models")
+"""What the dashboard may import from detach besides the run-folder package: task markers and
+table layouts (pure functions of messages), the policy player (the play panel's action) and the
+model registry (the paper rows' labels)."""
+
+
+def test_the_dashboard_reads_runs_only_through_the_run_folder_package() -> None:
+    """server/ reads run folders, logs included, only through `detach.runfolder`: no module of
+    its own decodes MCAP, and it imports nothing else of detach that reads run files."""
+    known = modules()
+    found = []
+    for name, path in sorted(known.items()):
+        if not (name == "server" or name.startswith("server.")):
+            continue
+        for dep in sorted(imports(name, path, known)):
+            if dep.startswith("detach") and not (dep.startswith(RUN_FOLDER_PACKAGE + ".") or dep == RUN_FOLDER_PACKAGE
+                                                 or dep in SERVER_DETACH_IMPORTS):
+                found.append(f"{name} imports {dep}")
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        for node in ast.walk(tree):
+            mods = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                    [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            found += [f"{name} imports {m}" for m in mods if m.split(".")[0] in ("mcap", "zstandard", "lz4")]
+    assert not found, "the dashboard reads runs around detach.runfolder:\n" + "\n".join(found)

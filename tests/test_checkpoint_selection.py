@@ -17,8 +17,8 @@ import pytest
 from detach import cli
 from detach.runs import validation
 from detach.runs.checkpoint_choice import select_checkpoint
-from detach.runs.folder import RunFolder, find_runs
-from detach.train.checkpoints import find_init_checkpoint
+from detach.runfolder.folder import RunFolder, find_runs
+from detach.train.checkpoints import find_init_checkpoint, newest_readable_checkpoint, run_policy_checkpoint
 
 ROOT = Path(__file__).resolve().parents[1]
 FOLLOW = str(ROOT / "configs/tasks/follow.yaml")
@@ -60,8 +60,8 @@ def test_the_best_checkpoint_on_validation_trials_is_the_runs_policy(
     evaluation = json.loads(run.eval_path.read_text())
     assert evaluation["checkpoint"] == "checkpoints/model_1.pt" and evaluation["iteration"] == 1
     assert find_init_checkpoint(str(run.path)) == (run.checkpoints / "model_1.pt", run.path)
-    assert run.policy_checkpoint() == run.checkpoints / "model_1.pt"
-    assert run.usable_checkpoint() == run.checkpoints / "model_2.pt"
+    assert run_policy_checkpoint(run.path) == run.checkpoints / "model_1.pt"
+    assert newest_readable_checkpoint(run.path) == run.checkpoints / "model_2.pt"
     assert cli.main(["export", str(run.path), "--format", "init"]) == 0
     assert (run.path / "exported/policy_1.init.pt").is_file()
 
@@ -86,7 +86,7 @@ def test_an_unreadable_checkpoint_is_left_out_and_a_broken_selection_is_an_error
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
     run = _train(tmp_path / "runs", "train.max_iterations=3", "--no-eval")
     assert not run.selection_path.exists()  # off by default: the newest is the policy
-    assert run.policy_checkpoint() == run.checkpoints / "model_2.pt"
+    assert run_policy_checkpoint(run.path) == run.checkpoints / "model_2.pt"
     (run.checkpoints / "model_0.pt").write_bytes(b"truncated")
     _scripted_scores(monkeypatch, [0.4, 0.3])
     cfg = run.config()
@@ -113,7 +113,7 @@ def test_a_later_stage_starts_from_the_policy_its_evaluation_read_when_the_newes
     file, not stop on the broken one."""
     source = _train(tmp_path / "runs", "train.max_iterations=2", "--no-eval")
     (source.checkpoints / "model_1.pt").write_bytes(b"truncated")
-    assert source.policy_checkpoint() == source.checkpoints / "model_0.pt"
+    assert run_policy_checkpoint(source.path) == source.checkpoints / "model_0.pt"
     assert find_init_checkpoint(str(source.path)) == (source.checkpoints / "model_0.pt", source.path)
     capsys.readouterr()
     assert cli.main(["train", FOLLOW, "--model", "mlp", "--runs", str(tmp_path / "next"), *TINY,

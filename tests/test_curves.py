@@ -6,7 +6,7 @@ from pathlib import Path
 
 from detach import cli
 from detach.runs.curves import run_curve, write_sweep_curves
-from detach.runs.folder import find_runs
+from detach.runfolder.folder import find_runs
 
 TINY = ["env.character=puppet", "sim.num_envs=4", "train.num_steps_per_env=8", "env.episode_length=6",
         "train.max_iterations=4", "--no-eval"]

@@ -15,12 +15,15 @@ import pytest
 
 from detach.character import build_character_model
 from detach.character.body import BODY_NAMES
-from detach.run_contract import SCENE_TOPIC, EpisodeFrame
-from detach.runs.mcap_log import RunLogWriter, read_episodes, read_metrics
-from server import log_tail
+from detach.runfolder import log_tail
+from detach.runfolder.log_tail import LogTail, closed_cleanly
+from detach.runfolder.mcap_reader import read_episodes, read_metrics
+from detach.runfolder.messages import EpisodeFrame
+from detach.runfolder.names import SCENE_TOPIC
+from detach.runs.mcap_log import RunLogWriter
 from server.cli import build_parser, main
+from server.episode import load_episode
 from server.launch import Launched, follow_output, launch_command
-from server.log_tail import LogTail, closed_cleanly
 from server.replay import Player, Replay
 from server.run_index import RunIndex
 from server.run_views import runs_table
@@ -52,7 +55,7 @@ def _write_log(path: Path, episodes: int = 3, frames: int = 25, flush_every: int
 
 def _same_episode(tail: LogTail, path: Path, number: int) -> None:
     ref = read_episodes(path)[number]
-    ep = tail.load_episode(number)
+    ep = load_episode(tail, number)
     assert ep is not None and ep.num_frames == len(ref)
     np.testing.assert_allclose(ep.pos, [m["pos"] for m in ref])
     np.testing.assert_allclose(ep.quat, [m["quat"] for m in ref])
@@ -73,7 +76,7 @@ def test_tail_matches_the_reference_reader(tmp_path: Path) -> None:
     assert tail.episode_keys() == [(0, 0), (1, 0), (2, 0)]
     for n in (0, 1, 2):
         _same_episode(tail, path, n)
-    assert tail.load_episode().number == 2
+    assert load_episode(tail).number == 2
     assert not tail.refresh(), "nothing new: nothing to do"
 
 
@@ -109,12 +112,12 @@ def test_tail_follows_a_live_writer(tmp_path: Path) -> None:
     log.log_metrics(1, {"Perf/total_fps": 120.0})  # flushes the frames too
     tail.refresh()
     assert [m["iteration"] for m in tail.metrics] == [0, 1]
-    assert tail.load_episode().num_frames == 12
+    assert load_episode(tail).num_frames == 12
     for f in range(12, 20):
         _frame(log, 0, f)
     log.flush()
     assert tail.refresh()
-    assert tail.load_episode().num_frames == 20, "the newest episode grows while it streams"
+    assert load_episode(tail).num_frames == 20, "the newest episode grows while it streams"
     assert not tail.complete
     log.close()
     tail.refresh()
@@ -134,7 +137,7 @@ def test_tail_skips_frame_chunks_until_an_episode_is_needed(tmp_path: Path, monk
     metric_calls = len(calls)
     assert metric_calls < frame_chunks / 2, "frame-only chunks were decompressed"
     calls.clear()
-    assert tail.load_episode().num_frames == 40
+    assert load_episode(tail).num_frames == 40
     assert len(calls) <= frame_chunks / 6 + 2, "the newest episode needs only its own chunks"
 
 
@@ -154,13 +157,13 @@ def test_trials_recorded_side_by_side_are_episodes_of_their_own(tmp_path: Path) 
     tail.refresh()
     assert tail.episode_keys() == [(300, t) for t in range(4)] and tail.episode_numbers() == [300]
     assert tail.newest_episode() == (300, 1)
-    newest = tail.load_episode()
+    newest = load_episode(tail)
     assert (newest.number, newest.trial, newest.num_frames) == (300, 1, 14)
     np.testing.assert_allclose(newest.pos[:, 0, 1], 1.0)
     for trial, n in lengths.items():
-        ep = tail.load_episode((300, trial))
+        ep = load_episode(tail, (300, trial))
         assert ep.num_frames == n and np.allclose(ep.pos[:, 0, 1], trial)
-    assert tail.load_episode(300).trial == 0, "a number alone is its trial 0"
+    assert load_episode(tail, 300).trial == 0, "a number alone is its trial 0"
 
 
 def test_tail_follows_a_log_rewritten_on_resume_and_concatenated_streams(tmp_path: Path) -> None:
@@ -178,7 +181,7 @@ def test_tail_follows_a_log_rewritten_on_resume_and_concatenated_streams(tmp_pat
     assert tail.refresh()
     assert [m["Perf/total_fps"] for m in tail.metrics] == [1.0, 2.0]
     assert tail.complete and tail.problem is None
-    assert tail.load_episode(0).num_frames == 5, "the latest recording of episode 0"
+    assert load_episode(tail, 0).num_frames == 5, "the latest recording of episode 0"
     both = tmp_path / "both.mcap"
     both.write_bytes(path.read_bytes() + path.read_bytes())
     twice = LogTail(both)
@@ -203,7 +206,7 @@ def test_tail_reports_garbage_and_bad_chunks_without_raising(tmp_path: Path) -> 
     bad.write_bytes(bytes(data))
     tail = LogTail(bad)
     tail.refresh()
-    tail.load_episode()  # must not raise either
+    load_episode(tail)  # must not raise either
     assert tail.problem and tail.problem.startswith("bad.mcap: "), "the message names the file"
     for at in range(20, data_end, 97):  # zeroes anywhere in the data section: never an exception
         hit = bytearray(path.read_bytes())
@@ -212,7 +215,7 @@ def test_tail_reports_garbage_and_bad_chunks_without_raising(tmp_path: Path) -> 
         tail = LogTail(bad)
         tail.refresh()
         tail.episode_keys()
-        tail.load_episode()
+        load_episode(tail)
 
 
 # --- run index -----------------------------------------------------------------------------
@@ -467,20 +470,25 @@ def test_launched_process_output_and_exit_code_are_shown(tmp_path: Path) -> None
 
 
 def test_the_index_parses_only_the_config_entries_it_shows(runs: Path) -> None:
+    """The run summary the index shows (`detach.runfolder.summary`, once `server.run_index.
+    _parse_config`): status.json's, else config.yaml's, in any YAML layout."""
     import yaml
 
-    from server.run_index import _parse_config
+    from detach.runfolder.files import parse_yaml
+    from detach.runfolder.folder import RunFolder
+    from detach.runfolder.messages import RunSummary
+    from detach.runfolder.summary import read_config_summary, summary_of_config_data
+
+    def parse(text: str) -> RunSummary:
+        return summary_of_config_data(parse_yaml(text, "config.yaml"))
 
     for run in runs.iterdir():
         text = (run / "config.yaml").read_text()
         full = yaml.safe_load(text)
-        parsed = _parse_config(text)
-        assert (parsed["task"], parsed["model"], parsed["seed"]) == (
-            full["task_name"], full["model_name"], full["seed"])
-        assert parsed["samples_per_iteration"] == full["sim"]["num_envs"] * full["train"][
-            "num_steps_per_env"]
+        for parsed in (parse(text), read_config_summary(run), RunFolder(run).summary()):
+            assert (parsed.task, parsed.model, parsed.seed) == (full["task_name"], full["model_name"], full["seed"])
+            assert parsed.samples_per_iteration == full["sim"]["num_envs"] * full["train"]["num_steps_per_env"]
     flow = "{task_name: lh2, model_name: cml, seed: 4, sim: {num_envs: 2}, train: {num_steps_per_env: 3}}"
-    assert _parse_config(flow) == {"task": "lh2", "model": "cml", "seed": 4,
-                                   "samples_per_iteration": 6}
+    assert parse(flow) == RunSummary("lh2", "cml", 4, 6)
     with pytest.raises(ValueError, match="missing keys model_name"):
-        _parse_config("task_name: lh1\nseed: 0\n")
+        parse("task_name: lh1\nseed: 0\n")

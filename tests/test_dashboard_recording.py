@@ -14,7 +14,8 @@ from detach.envs.lh_env import make_env
 from detach.envs.oracle import random_policy
 from detach.eval.episodes import run_evaluation
 from detach.runs.mcap_log import RunLogWriter
-from server.log_tail import LogTail
+from detach.runfolder.log_tail import LogTail
+from server.episode import load_episode
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -35,12 +36,12 @@ def test_an_evaluation_records_every_trial_of_every_env(tmp_path: Path) -> None:
     assert tail.episode_keys() == [(12, t) for t in range(4)], "one episode per trial"
     lengths = []
     for key in tail.episode_keys():
-        ep = tail.load_episode(key)
+        ep = load_episode(tail, key)
         assert ep.pos.shape[1:] == (15, 3) and np.isfinite(ep.pos).all()
         np.testing.assert_allclose(np.diff(ep.times), env.dt, rtol=1e-6)  # from frame 0, no gap
         lengths.append(ep.num_frames)
     assert all(2 <= n <= 31 for n in lengths), lengths
-    ends = {tuple(np.round(tail.load_episode(k).pos[-1, 0, :2], 3)) for k in tail.episode_keys()}
+    ends = {tuple(np.round(load_episode(tail, k).pos[-1, 0, :2], 3)) for k in tail.episode_keys()}
     assert len(ends) > 1, "the trials are different episodes, not copies of one"
 
 
@@ -74,7 +75,7 @@ def test_training_records_env_0s_next_whole_episode_after_each_checkpoint(tmp_pa
     tail.refresh()
     assert tail.episode_keys() == [(7, TRAINING_TRIAL), (19, TRAINING_TRIAL)]
     for key, after in ((7, 3), (19, 50)):
-        ep = tail.load_episode((key, TRAINING_TRIAL))
+        ep = load_episode(tail, (key, TRAINING_TRIAL))
         start = min(e for e in ends if e > after)  # env 0's first reset after the checkpoint
         end = min(e for e in ends if e > start)
         assert ep.num_frames == end - start, (key, ep.num_frames, start, end)

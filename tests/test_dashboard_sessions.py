@@ -15,9 +15,10 @@ import numpy as np
 import pytest
 
 from detach.character.body import BODY_NAMES
-from detach.run_contract import SCENE_TOPIC, EpisodeFrame
+from detach.runfolder.messages import EpisodeFrame
+from detach.runfolder.names import SCENE_TOPIC
 from detach.runs.mcap_log import RunLogWriter
-from server.log_tail import LogTail
+from detach.runfolder.log_tail import LogTail
 from server.replay_panel import NO_RUNS
 from tests.dashboard_fixtures import HeadlessClient, make_runs, start_dashboard
 

@@ -8,7 +8,7 @@ import pytest
 
 from detach.eval.report import TrialOutcome, summarize
 from detach.eval.tables import ablation_table, generalization_table, skills_table
-from detach.run_contract import EvalResult
+from detach.runfolder.eval_result import EvalResult
 
 
 def _evals(task: str, model: str, plan: list[str], scores: list[list[float]],

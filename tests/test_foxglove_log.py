@@ -10,7 +10,7 @@ from pathlib import Path
 
 from mcap.reader import make_reader
 
-from detach.run_contract import BodyGeom, EpisodeFrame, SceneMessage, SceneObject, SceneTarget
+from detach.runfolder.messages import BodyGeom, EpisodeFrame, SceneMessage, SceneObject, SceneTarget
 from detach.runs.foxglove import SCENE_UPDATE_TOPIC
 from detach.runs.mcap_log import RunLogWriter
 
@@ -93,7 +93,7 @@ def test_growing_log_fails_mcaps_standard_reader_not_ours(tmp_path: Path) -> Non
     """What docs/foxglove/README.md says about a run that is still writing."""
     import pytest
 
-    from detach.runs.mcap_log import iter_messages
+    from detach.runfolder.mcap_reader import iter_messages
 
     path = tmp_path / "log.mcap"
     log = RunLogWriter(path, assets_root=tmp_path)

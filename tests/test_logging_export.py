@@ -19,9 +19,9 @@ from detach import cli
 from detach.config import resolve
 from detach.envs.lh_env import make_env
 from detach.models.factory import build_actor_critic
-from detach.run_contract import AGENT_PARAMS_FILE, PROVENANCE_FILE
-from detach.runs.folder import RunFolder, find_runs
-from detach.runs.mcap_log import read_metrics
+from detach.runfolder.names import AGENT_PARAMS_FILE, PROVENANCE_FILE
+from detach.runfolder.folder import RunFolder, find_runs
+from detach.runfolder.mcap_reader import read_metrics
 from detach.train.checkpoints import load_module_weights, read_checkpoint, write_checkpoint
 from detach.train.checks import complete_run_config
 from detach.train.setup import default_action_std

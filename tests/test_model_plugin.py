@@ -15,7 +15,7 @@ import pytest
 from detach import cli
 from detach.eval.tables import skills_table
 from detach.models import registered_models, unregister_model
-from detach.runs.folder import find_runs
+from detach.runfolder.folder import find_runs
 
 ROOT = Path(__file__).resolve().parents[1]
 

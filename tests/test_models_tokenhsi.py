@@ -189,7 +189,7 @@ def _carry_stage_from_follow(tmp_path: Path, *overrides: str):
     """A one-iteration TokenHSI Follow run, then the Carry stage's start from it (the protocol's
     `train.init_from` with merged statistics): (actor, first Carry observation, log line)."""
     from detach import cli
-    from detach.runs.folder import find_runs
+    from detach.runfolder.folder import find_runs
     from detach.train.checks import complete_run_config
     from detach.train.setup import load_initial_weights
     assert cli.main(["train", str(ROOT / "configs/tasks/follow.yaml"), "--model", "tokenhsi", "--runs",

@@ -9,7 +9,7 @@ import pytest
 
 from detach.eval import metrics
 from detach.eval.tables import generalization_table, skills_table
-from detach.run_contract import EvalResult, RateResult, SubtaskResult
+from detach.runfolder.eval_result import EvalResult, RateResult, SubtaskResult
 
 
 def evaluation(task: str, model: str, plan: list[str], rates: list[float], n: int = 100) -> EvalResult:
@@ -85,7 +85,7 @@ def test_detach_run_table_prints_both_lh_columns_and_either_sgr(tmp_path, capsys
 
     from detach import cli
     from detach.config import resolve
-    from detach.runs.folder import RunFolder
+    from detach.runfolder.folder import RunFolder
 
     follow = Path(__file__).resolve().parents[1] / "configs/tasks/follow.yaml"
     for result in PAPER:

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from detach import cli
-from detach.runs.folder import RunFolder, find_runs
+from detach.runfolder.folder import RunFolder, find_runs
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ["env.character=puppet", "sim.num_envs=2", "train.num_steps_per_env=8", "eval.num_envs=1",
@@ -88,7 +88,8 @@ def test_eval_video_shows_the_task(run: RunFolder, tmp_path: Path) -> None:
 
     plain = tmp_path / "plain.mp4"
     script = ("import sys; from pathlib import Path; from detach.runs.video import choose_gl; choose_gl(); "
-              "from detach.runs.folder import RunFolder; from detach.runs.play import PolicyRollout, record_video; "
+              "from detach.runfolder.folder import RunFolder; "
+              "from detach.runs.play import PolicyRollout, record_video; "
               "record_video(PolicyRollout(RunFolder(Path(sys.argv[1]))), Path(sys.argv[2]), steps=5, markers=False)")
     env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "PYOPENGL_PLATFORM")}
     proc = subprocess.run([sys.executable, "-c", script, str(run.path), str(plain)], capture_output=True,

@@ -11,7 +11,7 @@ import torch
 import yaml
 
 from detach import cli
-from detach.runs.folder import find_runs
+from detach.runfolder.folder import find_runs
 
 ROOT = Path(__file__).resolve().parents[1]
 FOLLOW = str(ROOT / "configs/tasks/follow.yaml")

@@ -11,7 +11,7 @@ import torch
 
 from detach import cli
 from detach.config import resolve
-from detach.runs.folder import find_runs
+from detach.runfolder.folder import find_runs
 from detach.train.checks import complete_run_config
 from detach.train.setup import build_runner, load_initial_weights
 

@@ -19,8 +19,8 @@ import pytest
 import torch
 
 from detach import cli
-from detach.runs.folder import RunFolder, find_runs
-from detach.runs.mcap_log import read_metrics
+from detach.runfolder.folder import RunFolder, find_runs
+from detach.runfolder.mcap_reader import read_metrics
 from detach.train import checkpoints as checkpoint_io
 from tests.test_runner_cli import FOLLOW, TINY
 
@@ -190,7 +190,7 @@ def test_a_full_disk_fails_the_run_in_one_line_and_leaves_no_partial_file(
 
 def test_status_is_recorded_even_when_no_new_file_fits(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     from detach.config import resolve
-    from detach.runs import folder
+    from detach.runfolder import atomic
 
     run = RunFolder.create(tmp_path, resolve(FOLLOW, "mlp"))
     run.set_state("running", iteration=7)
@@ -198,7 +198,7 @@ def test_status_is_recorded_even_when_no_new_file_fits(tmp_path: Path, monkeypat
     def disk_full(*_a, **_k):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(folder, "atomic_writer", disk_full)
+    monkeypatch.setattr(atomic, "atomic_writer", disk_full)
     run.set_state("failed", error="No space left on device")
     assert run.status().state == "failed" and run.status().iteration == 7
     assert json.loads(run.status_path.read_text())["error"] == "No space left on device"

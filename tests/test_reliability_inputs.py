@@ -75,12 +75,12 @@ def test_an_out_folder_that_cannot_be_written_is_one_line(tmp_path: Path,
 
 def test_a_run_folder_is_all_or_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                         capsys: pytest.CaptureFixture[str]) -> None:
-    from detach.runs import folder
+    from detach.runfolder import atomic
 
     def read_only(*_args, **_kwargs):
         raise PermissionError(13, "Permission denied")
 
-    monkeypatch.setattr(folder, "atomic_writer", read_only)
+    monkeypatch.setattr(atomic, "atomic_writer", read_only)
     assert cli.main([FOLLOW, "--model", "mlp", "--out", str(tmp_path), *TINY]) == 2
     assert "Permission denied" in _one_line(capsys)
     assert list(tmp_path.iterdir()) == [], "the half-made run folder is removed"

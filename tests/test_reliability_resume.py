@@ -16,7 +16,7 @@ import yaml
 from detach import cli
 from detach.config import resolve
 from detach.config_schema import StagesCfg
-from detach.runs.folder import RunFolder
+from detach.runfolder.folder import RunFolder
 from detach.runs.provenance import code_change_since, git_state
 from detach.train.schedule import extend_schedule, stage_at, stage_lengths
 from tests.test_runner_cli import FOLLOW

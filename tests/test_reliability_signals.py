@@ -17,7 +17,8 @@ import pytest
 
 from detach import cli
 from detach.config import resolve
-from detach.runs.folder import RunFolder, find_runs, owner_alive
+from detach.runfolder.folder import RunFolder, find_runs
+from detach.runfolder.liveness import owner_alive
 from tests.test_runner_cli import FOLLOW, ROOT, TINY
 
 SLOW_STEP = """

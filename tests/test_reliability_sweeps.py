@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from detach.config import resolve
-from detach.runs.folder import RunFolder, find_runs
+from detach.runfolder.folder import RunFolder, find_runs
 from detach.runs.sweep import cells, load_sweep, run_sweep
 from tests.test_runner_cli import FOLLOW
 from tests.test_sweep_protocol import ROOT, TINY

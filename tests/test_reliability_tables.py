@@ -13,7 +13,7 @@ import pytest
 
 from detach import cli
 from detach.config import resolve
-from detach.runs.folder import RunFolder, find_runs
+from detach.runfolder.folder import RunFolder, find_runs
 from detach.runs.tables_cli import collect_evals
 from tests.test_runner_cli import FOLLOW
 

@@ -16,9 +16,9 @@ import pytest
 import torch
 
 from detach import cli
-from detach.run_contract import EvalResult
-from detach.runs.folder import RunFolder, find_runs
-from detach.runs.mcap_log import read_episodes, read_metrics, read_scene
+from detach.runfolder.eval_result import EvalResult
+from detach.runfolder.folder import RunFolder, find_runs
+from detach.runfolder.mcap_reader import read_episodes, read_metrics, read_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 FOLLOW = str(ROOT / "configs/tasks/follow.yaml")

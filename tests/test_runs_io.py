@@ -9,9 +9,11 @@ import pytest
 
 from detach.config import resolve
 from detach.eval.metrics import egr, mean_interval, sgr, success_rate, wilson_interval
-from detach.run_contract import METRICS_TOPIC, TF_TOPIC, EpisodeFrame, SceneMessage, SceneObject
-from detach.runs.folder import RunFolder, find_runs
-from detach.runs.mcap_log import RunLogWriter, iter_messages, read_episodes, read_metrics, read_scene
+from detach.runfolder.messages import EpisodeFrame, SceneMessage, SceneObject
+from detach.runfolder.names import METRICS_TOPIC, TF_TOPIC
+from detach.runfolder.folder import RunFolder, find_runs
+from detach.runfolder.mcap_reader import iter_messages, read_episodes, read_metrics, read_scene
+from detach.runs.mcap_log import RunLogWriter
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -175,7 +177,7 @@ def test_resumed_log_keeps_only_iterations_up_to_the_checkpoint(tmp_path: Path) 
 
 
 def test_atomic_writer_leaves_the_old_file_or_the_new_one(tmp_path: Path) -> None:
-    from detach.run_contract import atomic_writer
+    from detach.runfolder.atomic import atomic_writer
 
     target = tmp_path / "model_1.pt"
     target.write_bytes(b"old")

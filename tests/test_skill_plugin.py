@@ -18,7 +18,8 @@ from detach.envs.oracle import Oracle
 from detach.eval.episodes import run_evaluation
 from detach.eval.scene import scene_message
 from detach.eval.tables import skills_table
-from detach.run_contract import EvalResult, SceneMessage
+from detach.runfolder.eval_result import EvalResult
+from detach.runfolder.messages import SceneMessage
 from detach.skills import RewardTerm, Skill, register_skill, skill_names, unregister_skill
 from detach.skills.context import OracleCommand, SkillContext
 from detach.train.checks import complete_run_config

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from detach import cli
-from detach.runs.folder import find_runs
+from detach.runfolder.folder import find_runs
 from detach.config import ConfigError
 from detach.runs.sweep import cell_work, cells, load_sweep, run_sweep, stderr_tail
 from detach.runs.sweep_eta import SweepClock

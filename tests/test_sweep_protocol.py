@@ -18,7 +18,7 @@ import torch
 from detach import cli
 from detach.config import resolve
 from detach.runs.curves import run_curve
-from detach.runs.folder import find_runs
+from detach.runfolder.folder import find_runs
 from detach.runs.sweep import _lock_path, cells, file_lock, load_sweep
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -14,7 +14,7 @@ from detach.eval.task_markers import (
     DONE_PATH_COLOR, FAILURE_COLOR, MAX_PATH_POINTS, PATH_COLOR, SUCCESS_COLOR, Disc, PathMemo, Polyline,
     Sphere, TaskState, Text, split_path, task_markers, task_state,
 )
-from detach.run_contract import EpisodeFrame, SceneMessage, SceneTarget
+from detach.runfolder.messages import EpisodeFrame, SceneMessage, SceneTarget
 from detach.runs.foxglove import TASK_UPDATE_TOPIC
 from detach.runs.mcap_log import RunLogWriter
 
@@ -134,7 +134,7 @@ def test_dashboard_replay_draws_each_frames_markers(tmp_path: Path) -> None:
     scene = SceneMessage("follow", [], {}, [SIT], ["pelvis"], [])
     frames = [EpisodeFrame(3, k, k / 30, ["pelvis"], [[0.1 * k, 0, 0.9]], [[1, 0, 0, 0]], skill="follow",
                            target=[2.0, 1.0, 0.0], path=PATH.tolist() if k == 0 else None, path_index=0.5 * k,
-                           outcome="success" if k == 4 else "", scores=[1.0] if k == 4 else None).to_json()
+                           outcome="success" if k == 4 else "", scores=[1.0] if k == 4 else None)
               for k in range(5)]
     ep = episode_from_frames(3, frames, 0)
     server = viser.ViserServer(host="127.0.0.1", port=_port(), verbose=False)

@@ -10,8 +10,8 @@ import torch
 
 from detach import cli
 from detach.config import resolve
-from detach.runs.folder import find_runs
-from detach.runs.mcap_log import read_metrics
+from detach.runfolder.folder import find_runs
+from detach.runfolder.mcap_reader import read_metrics
 from detach.train.checks import complete_run_config
 from detach.train.setup import build_runner
 

@@ -9,7 +9,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from detach.runs.mcap_log import RunLogWriter, read_metrics
+from detach.runfolder.mcap_reader import read_metrics
+from detach.runs.mcap_log import RunLogWriter
 from detach.train.runner import DetachRunner, StopRequested
 from tests.fakes import PointMassEnv
 from tests.test_amp_ppo import reference, train_cfg

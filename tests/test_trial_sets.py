@@ -16,8 +16,8 @@ from detach import cli
 from detach.config import resolve
 from detach.eval.aids import run_aids
 from detach.eval.trial_sets import MIN_TEST_SEED_OFFSET, TrialSetError, trial_seed
-from detach.run_contract import eval_file, trial_set_of_file
-from detach.runs.folder import find_runs
+from detach.runfolder.names import eval_file, trial_set_of_file
+from detach.runfolder.folder import find_runs
 from detach.runs.validation import validation_seed
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -46,7 +46,7 @@ def test_nothing_outside_the_sweep_passes_the_test_offset() -> None:
     only: the flag and the call that play the test trials appear in the sweep's command, the
     CLI that parses it and the session that runs it, nowhere else."""
     allowed = {"detach/runs/sweep.py", "detach/cli.py", "detach/runs/session.py", "detach/eval/trial_sets.py",
-               "detach/run_contract.py", "detach/runs/tables_cli.py", "detach/runs/ship.py"}
+               "detach/runfolder/names.py", "detach/runs/tables_cli.py", "detach/runs/ship.py"}
     pattern = re.compile(r"--test-trials|test_offset\s*=|trial_seed\([^)]*[\"']test[\"']")
     offenders = []
     for folder in ("detach", "server", "examples", "benchmarks", "results"):

@@ -18,7 +18,8 @@ from tqdm import tqdm
 from detach.config_schema import RunConfig
 from detach.eval.report import TrialOutcome, summarize
 from detach.eval.scene import scene_message
-from detach.run_contract import EpisodeFrame, EvalResult, SceneMessage
+from detach.runfolder.eval_result import EvalResult
+from detach.runfolder.messages import EpisodeFrame, SceneMessage
 
 Policy = Callable[[TensorDict], torch.Tensor]
 

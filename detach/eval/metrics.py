@@ -97,7 +97,7 @@ NOVEL_SKILLS = ("climb", "sit")
 
 
 def sgr(plan: Sequence[str], subtask_rates: Sequence[float], variant: str = "reported") -> float:
-    """Skill generalisation rate (variants: `detach.run_contract.SGR_VARIANTS`).
+    """Skill generalisation rate (variants: `detach.runfolder.eval_result.SGR_VARIANTS`).
 
     `formula`, as the paper prints it: ((S_climb + S_sit) / 2) / ((S_follow + S_carry) / 2),
     a skill the plan lacks counting 0. `reported`, what reproduces the paper's own values:

@@ -1,4 +1,4 @@
-"""From per-trial outcomes to the `EvalResult` of eval.json (`detach.run_contract`).
+"""From per-trial outcomes to the `EvalResult` of eval.json (`detach.runfolder.eval_result`).
 
 Subtask rates use the paper's definitions (carry: grasp only = 0.5). Two LH rates: `lh_mean`,
 the mean of the subtask rates (the paper's), and `lh_chain`, every subtask in one episode.
@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 from detach.eval.metrics import mean_interval, sgr, success_rate
-from detach.run_contract import SGR_VARIANTS, EvalResult, RateResult, SubtaskResult
+from detach.runfolder.eval_result import SGR_VARIANTS, EvalResult, RateResult, SubtaskResult
 
 
 @dataclass

@@ -9,7 +9,7 @@ import numpy as np
 
 from detach.character.body import BODY_NAMES
 from detach.config_schema import RunConfig
-from detach.run_contract import BodyGeom, SceneMessage, SceneObject, SceneTarget
+from detach.runfolder.messages import BodyGeom, SceneMessage, SceneObject, SceneTarget
 from detach.skills import skill_class
 
 _GEOM_KINDS = {int(mujoco.mjtGeom.mjGEOM_CAPSULE): "capsule", int(mujoco.mjtGeom.mjGEOM_SPHERE): "sphere",

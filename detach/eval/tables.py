@@ -31,7 +31,7 @@ from typing import Callable, Iterable, Sequence
 from detach.eval.aids import label
 from detach.eval.metrics import LEARNED_SKILLS, NOVEL_SKILLS, egr, sgr, success_rate, wilson_interval
 from detach.models import model_label, model_order
-from detach.run_contract import SGR_VARIANTS, EvalResult
+from detach.runfolder.eval_result import SGR_VARIANTS, EvalResult
 from detach.skills import canonical_name, display_name, skill_names
 
 PAPER_SKILLS = (*LEARNED_SKILLS, *NOVEL_SKILLS)

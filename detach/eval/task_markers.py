@@ -25,7 +25,7 @@ from typing import Any, Sequence, Union
 
 import numpy as np
 
-from detach.run_contract import SceneTarget
+from detach.runfolder.messages import SceneTarget
 
 RGB = tuple[int, int, int]
 

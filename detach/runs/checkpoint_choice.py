@@ -11,8 +11,9 @@ rule for every model.
 from __future__ import annotations
 
 from detach.config_schema import RunConfig
-from detach.run_contract import checkpoint_file, checkpoint_iteration
-from detach.runs.folder import RunFolder, atomic_write_json
+from detach.runfolder.names import checkpoint_file, checkpoint_iteration
+from detach.runfolder.atomic import atomic_write_json
+from detach.runfolder.folder import RunFolder
 from detach.runs.policy import load_policy
 from detach.runs.validation import validation_env, validation_score, validation_seed
 from detach.train.checkpoints import UnreadableCheckpoint

@@ -21,9 +21,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-from detach.run_contract import ContractError, atomic_writer, checkpoint_iteration, selected_checkpoint
-from detach.runs.folder import RunFolder
-from detach.runs.mcap_log import read_metrics
+from detach.runfolder.atomic import atomic_writer
+from detach.runfolder.checkpoints import selected_checkpoint
+from detach.runfolder.messages import ContractError
+from detach.runfolder.names import checkpoint_iteration
+from detach.runfolder.folder import RunFolder
+from detach.runfolder.mcap_reader import read_metrics
 
 Report = Callable[[str], None]
 

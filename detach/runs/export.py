@@ -21,10 +21,13 @@ import torch
 from detach.config import ConfigError
 from detach.envs.lh_env import make_env
 from detach.models.flat_policy import FlatPolicy
-from detach.run_contract import EXPORT_DIR, EXPORT_FORMATS, checkpoint_file, checkpoint_iteration, export_file
-from detach.runs.folder import RunFolder, atomic_write_json, atomic_write_text
+from detach.runfolder.names import EXPORT_FORMATS, checkpoint_file, checkpoint_iteration, export_file
+from detach.runfolder.atomic import atomic_write_json, atomic_write_text
+from detach.runfolder.folder import RunFolder
 from detach.runs.policy import load_policy
-from detach.train.checkpoints import check_model, load_module_weights, read_checkpoint, write_checkpoint
+from detach.train.checkpoints import (
+    check_model, load_module_weights, read_checkpoint, run_policy_checkpoint, write_checkpoint,
+)
 from detach.train.setup import prepare_assets
 
 ONNX_OPSET = 18
@@ -54,7 +57,7 @@ class Exported:
 def export_run(run_dir: Path, checkpoint: int | None = None, fmt: str = "onnx",
                out: Path | None = None, *, output: Path | None = None) -> Exported:
     """Export checkpoint `checkpoint` (an iteration; None: the run's policy,
-    `RunFolder.policy_checkpoint`) of a run as `fmt` (onnx | jit) to `out` (default
+    `detach.train.checkpoints.run_policy_checkpoint`) of a run as `fmt` (onnx | jit) to `out` (default
     <run>/exported/policy_<iteration>.onnx|.pt). ConfigError for a missing run, checkpoint or
     extra; RuntimeError when the file disagrees with torch."""
     out = out if out is not None else output
@@ -64,7 +67,7 @@ def export_run(run_dir: Path, checkpoint: int | None = None, fmt: str = "onnx",
     if not run.config_path.exists():
         raise ConfigError("not a run folder (no config.yaml)", str(run_dir))
     if checkpoint is None:
-        path = run.policy_checkpoint()
+        path = run_policy_checkpoint(run.path)
         if path is None:
             raise ConfigError("run has no readable checkpoint to export", str(run_dir))
     else:
@@ -80,7 +83,7 @@ def export_run(run_dir: Path, checkpoint: int | None = None, fmt: str = "onnx",
     actor, state = load_policy(cfg, env, path)
     iteration = int(state.get("iter", checkpoint_iteration(path.name) or 0))
     policy = FlatPolicy(actor)
-    target = Path(out) if out is not None else run.path / EXPORT_DIR / export_file(iteration, fmt)
+    target = Path(out) if out is not None else run.export_dir / export_file(iteration, fmt)
     target.parent.mkdir(parents=True, exist_ok=True)
     obs = _check_observations(env, actor)
     if fmt in ("init", "policy"):

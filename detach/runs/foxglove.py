@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from detach.eval.task_markers import Disc, Marker, Polyline, Sphere, Text
-from detach.run_contract import SceneMessage
+from detach.runfolder.messages import SceneMessage
 
 SCENE_UPDATE_TOPIC = "/foxglove/scene"
 TASK_UPDATE_TOPIC = "/foxglove/task"

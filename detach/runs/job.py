@@ -21,7 +21,8 @@ import traceback
 from typing import Callable, Iterator, TextIO
 
 from detach.config import ConfigError
-from detach.runs.folder import HEARTBEAT_S, RunFolder
+from detach.runfolder.folder import RunFolder
+from detach.runfolder.liveness import HEARTBEAT_S
 from detach.train.runner import StopRequested
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130

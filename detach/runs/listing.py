@@ -3,7 +3,8 @@
 A run whose status.json says `running` but whose process is gone (`kill -9`, a crashed
 machine) is listed as `dead`, with the command that resumes it; a malformed eval.json shows
 as `invalid` with its reason, and never stops the listing of the other runs; a failed run
-shows the reason it failed with.
+shows the reason it failed with. The summary, the shown state and the checks of eval.json
+are `detach.runfolder`'s, the ones the dashboard shows.
 """
 
 from __future__ import annotations
@@ -11,8 +12,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from detach.run_contract import LIVE_STATES, checkpoint_iteration
-from detach.runs.folder import RunFolder, find_runs, owner_alive, this_host
+from detach.runfolder.checkpoints import has_checkpoint
+from detach.runfolder.folder import RunFolder, find_runs
+from detach.runfolder.liveness import DEAD, shown_state, this_host
 
 
 def run_row(run: RunFolder) -> dict[str, Any]:
@@ -20,16 +22,16 @@ def run_row(run: RunFolder) -> dict[str, Any]:
     row: dict[str, Any] = {"run": run.path.name}
     try:
         status = run.status()
-        cfg = run.config()
+        summary = run.summary()
     except Exception as exc:  # noqa: BLE001 - a broken folder is listed, not fatal
         row.update(state="unreadable", error=f"{exc.__class__.__name__}: {exc}")
         return row
-    row.update(task=cfg.task_name, model=cfg.model_name, seed=cfg.seed,
+    row.update(task=summary.task, model=summary.model, seed=summary.seed,
                state=status.state, iteration=status.iteration, run_id=status.run_id)
-    if status.state in LIVE_STATES and status.pid and not owner_alive(status):
+    if shown_state(status) == DEAD:
         where = f" on {status.host}" if status.host and status.host != this_host() else ""
-        row["state"] = "dead"
-        started = (f"resume with: detach-run --resume {run.path}" if _has_checkpoint(run) else
+        row["state"] = DEAD
+        started = (f"resume with: detach-run --resume {run.path}" if has_checkpoint(run.path) else
                    f"no checkpoint yet: detach-run --resume {run.path} restarts it from iteration 0")
         row.setdefault("notes", []).append(f"status says {status.state}, but its process {status.pid}{where} "
                                            f"is gone; {started}")
@@ -39,18 +41,10 @@ def run_row(run: RunFolder) -> dict[str, Any]:
         result = run.eval_result()
     except Exception as exc:  # noqa: BLE001 - one bad eval.json must not hide the other runs
         row["lh_sr"] = "invalid"
-        row.setdefault("notes", []).append(f"eval.json ignored: {exc}")
+        row.setdefault("notes", []).append(f"{run.eval_path.name} ignored: {exc}")
         return row
     row["lh_sr"] = result.lh_success.rate if result else None
     return row
-
-
-def _has_checkpoint(run: RunFolder) -> bool:
-    """Whether the run has a checkpoint file (read or not: `--resume` says if none is whole)."""
-    try:
-        return any(checkpoint_iteration(p.name) is not None for p in run.checkpoints.iterdir())
-    except OSError:
-        return False
 
 
 def _rate(value: Any) -> str:

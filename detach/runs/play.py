@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Iterator
 
 from detach.eval.task_markers import Marker, TaskState, task_markers
-from detach.runs.folder import RunFolder
+from detach.runfolder.folder import RunFolder
 from detach.runs.video import FollowRenderer, VideoWriter, choose_gl
 
 
@@ -31,12 +31,12 @@ class PolicyRollout:
         from detach.eval.scene import scene_message
         from detach.runs.policy import load_policy
         from detach.runs.session import eval_config
-        from detach.train.checkpoints import CheckpointError
+        from detach.train.checkpoints import CheckpointError, run_policy_checkpoint
         from detach.train.setup import apply_torch_threads, prepare_assets, seed_everything
 
         self.run = run
         self.cfg = eval_config(run.config(), task_path)
-        self.checkpoint = checkpoint or run.policy_checkpoint(device)
+        self.checkpoint = checkpoint or run_policy_checkpoint(run.path, device)
         if self.checkpoint is None:
             raise CheckpointError("no readable checkpoint to play", str(run.checkpoints))
         prepare_assets(self.cfg.task)

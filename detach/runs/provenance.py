@@ -24,8 +24,8 @@ from typing import Any
 import torch
 
 import detach
-from detach.run_contract import PROVENANCE_FILE
-from detach.runs.folder import RunFolder, atomic_write_json, read_json
+from detach.runfolder.atomic import atomic_write_json
+from detach.runfolder.folder import RunFolder, read_json
 
 CODE_PATHS = ("detach", "scene_builder", "configs", "pyproject.toml")
 """What decides a run's behaviour besides its config.yaml (docs and results do not)."""
@@ -100,7 +100,7 @@ def provenance_record(device: str, resumed: bool = False) -> dict[str, Any]:
 
 def write_provenance(run: RunFolder, device: str, resumed: bool = False) -> Path:
     """Add this start's record to the run's provenance.json: `{"runs": [first, resume, ...]}`."""
-    path = run.path / PROVENANCE_FILE
+    path = run.provenance_path
     records: list[dict[str, Any]] = []
     if resumed and path.exists():
         try:
@@ -115,7 +115,7 @@ def write_provenance(run: RunFolder, device: str, resumed: bool = False) -> Path
 
 def last_git(run: RunFolder) -> dict[str, Any] | None:
     """The git state of the run's last start or resume (provenance.json), None where unknown."""
-    path = run.path / PROVENANCE_FILE
+    path = run.provenance_path
     try:
         records = read_json(path).get("runs", []) if path.exists() else []
     except (OSError, ValueError, AttributeError):

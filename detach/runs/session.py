@@ -23,14 +23,16 @@ from detach.eval.aids import run_aids
 from detach.eval.episodes import TrainingEpisodes, run_evaluation
 from detach.eval.trial_sets import TrialSetError, trial_seed
 from detach.eval.scene import scene_message
-from detach.run_contract import AGENT_PARAMS_FILE, TEST_EVAL_SUFFIX, EvalResult, checkpoint_iteration, eval_file
+from detach.runfolder.eval_result import EvalResult
+from detach.runfolder.names import checkpoint_iteration, eval_file, policy_eval_file
 from detach.runs.checkpoint_choice import select_checkpoint
-from detach.runs.folder import RunFolder, atomic_write_json, atomic_write_text, read_eval
+from detach.runfolder.atomic import atomic_write_json, atomic_write_text
+from detach.runfolder.folder import RunFolder, read_eval
 from detach.runs.mcap_log import RunLogWriter
 from detach.runs.policy import load_policy
 from detach.runs.provenance import write_provenance
 from detach.runs.start_choice import choose_action_means
-from detach.train.checkpoints import CheckpointError
+from detach.train.checkpoints import CheckpointError, run_policy_checkpoint
 from detach.train.setup import (
     apply_torch_threads, build_runner, load_initial_weights, prepare_assets, seed_everything, train_cfg_dict,
 )
@@ -82,7 +84,7 @@ def write_agent_params(run: RunFolder, cfg: RunConfig, env) -> Path:
     """params/agent.yaml: the run's rsl-rl train config as plain YAML, so that stock rsl-rl
     code loads its checkpoints (`OnPolicyRunner(env, cfg, None, device).load(path)` with
     `detach.train.amp_ppo:AmpPPO` as the algorithm; docs/EXPORT.md)."""
-    path = run.path / AGENT_PARAMS_FILE
+    path = run.agent_params_path
     params = train_cfg_dict(cfg, env)
     if params["logger"] == "none":  # ours; rsl-rl's own default, used only when it gets a log_dir
         params["logger"] = "tensorboard"
@@ -149,7 +151,7 @@ def evaluate_run(run: RunFolder, task_path: Path | None, checkpoint: Path | None
     trial_set = trial_set_of(run, test_offset)
     train_cfg = run.config()
     cfg = eval_config(train_cfg, task_path)
-    checkpoint = checkpoint or run.policy_checkpoint(device or cfg.device)
+    checkpoint = checkpoint or run_policy_checkpoint(run.path, device or cfg.device)
     if checkpoint is None:
         raise CheckpointError("no readable checkpoint to evaluate", str(run.checkpoints))
     own = cfg.task_name == train_cfg.task_name
@@ -183,9 +185,7 @@ def evaluate_policy_file(policy: Path, task_path: Path | None, seed: int | None,
     cfg = eval_config(train_cfg, task_path)
     result = _evaluate(cfg, train_cfg, policy, trials, device, trial_set, test_offset, None)
     result.checkpoint = policy.name
-    stem = policy.name.removesuffix(".pt")
-    suffix = TEST_EVAL_SUFFIX if trial_set == "test" else ""
-    path = policy.with_name(f"{stem}.eval_{cfg.task_name}_s{cfg.seed}{suffix}.json")
+    path = policy.with_name(policy_eval_file(policy.name, cfg.task_name, cfg.seed, trial_set))
     atomic_write_json(path, result.to_json())
     return path
 

@@ -18,7 +18,8 @@ from typing import Callable, Sequence
 
 from detach.config import ConfigError
 from detach.runs.export import export_run
-from detach.runs.folder import RunFolder, atomic_write_json, atomic_write_text, read_eval
+from detach.runfolder.atomic import atomic_write_json, atomic_write_text
+from detach.runfolder.folder import RunFolder, read_eval
 from detach.runs.provenance import last_git
 from detach.runs.session import eval_config, eval_path, evaluate_policy_file
 from detach.runs.sweep import cells, existing_runs, load_sweep

@@ -45,8 +45,8 @@ from typing import BinaryIO, Collection, Iterable, Literal, Mapping, Sequence
 from detach.config import find_config_file, load_merged, resolve
 from detach.config_validate import Builder
 from detach.eval.trial_sets import TrialSetError, check_test_offset
-from detach.run_contract import eval_file
-from detach.runs.folder import RunFolder, find_runs
+from detach.runfolder.names import eval_file
+from detach.runfolder.folder import RunFolder, find_runs
 from detach.runs.sweep_eta import SweepClock
 from detach.skills import canonical_name
 from detach.train.checkpoints import kept_iterations, saves_after

@@ -29,8 +29,10 @@ from detach.config import ConfigError
 from detach.eval.aids import merge_aids, run_aids
 from detach.eval.tables import TABLES, render
 from detach.eval.trial_sets import describe
-from detach.run_contract import EVAL_GLOB, EvalResult, trial_set_of_file
-from detach.runs.folder import RunFolder, atomic_write_text, find_runs, read_eval
+from detach.runfolder.eval_result import EvalResult
+from detach.runfolder.names import trial_set_of_file
+from detach.runfolder.atomic import atomic_write_text
+from detach.runfolder.folder import RunFolder, find_runs, read_eval
 
 Report = Callable[[str], None]
 
@@ -78,7 +80,7 @@ def collect_evals(runs: list[RunFolder], cells: Mapping[str, Collection[str]] | 
         copies.setdefault(run_id, set()).add(run.path.name)
         if cells is not None and cell not in cells:
             continue
-        for path in sorted(run.path.glob(EVAL_GLOB)):
+        for path in run.evaluation_paths():
             if trial_set is not None and trial_set_of_file(path.name) != trial_set:
                 continue
             try:
@@ -233,7 +235,7 @@ def _after_test(key: str, run: RunFolder, runs: Mapping[str, RunFolder]) -> bool
     for other_key, other in runs.items():
         if other_key == key or not other_key.startswith(prefix):
             continue
-        for path in other.path.glob(EVAL_GLOB):
+        for path in other.evaluation_paths():
             try:
                 if trial_set_of_file(path.name) == "test" and path.stat().st_mtime < created:
                     return True

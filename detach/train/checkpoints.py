@@ -5,7 +5,7 @@
   `__reduce__` would otherwise execute on `--eval`, `--resume` and a sweep's automatic
   resume). Every way a file can be unusable (refused, truncated, not a checkpoint, of
   another model) is one `CheckpointError` line, which the CLI reports with exit code 2.
-- Writing goes through `run_contract.atomic_writer`: fsynced, renamed into place, the
+- Writing goes through `detach.runfolder.atomic.atomic_writer`: fsynced, renamed into place, the
   temporary file removed when the disk is full or the process is stopped mid-write.
 - Retention (`train.keep_checkpoints`): the newest `last` checkpoints and every checkpoint
   whose iteration count is a multiple of `every`; the AMP replay sidecar only for the newest.
@@ -26,10 +26,11 @@ from typing import Any
 import numpy as np
 import torch
 
-from detach.run_contract import (
-    CHECKPOINT_DIR, CONFIG_FILE, ContractError, atomic_writer, checkpoint_file, checkpoint_iteration, fsync_folder,
-    replay_file, replay_iteration, selected_checkpoint,
-)
+from detach.runfolder.atomic import atomic_writer, fsync_folder
+from detach.runfolder.checkpoints import checkpoints_in, newest_readable, policy_checkpoint, replays_in
+from detach.runfolder.folder import RunFolder
+from detach.runfolder.messages import ContractError
+from detach.runfolder.names import checkpoint_iteration, replay_file
 from detach.yaml_source import ConfigError
 
 REQUIRED_KEYS = ("actor_state_dict", "critic_state_dict", "iter")
@@ -148,12 +149,11 @@ def kept_iterations(iterations: list[int], last: int, every: int) -> set[int]:
 def prune_checkpoints(folder: Path, last: int, every: int) -> list[Path]:
     """Delete checkpoints retention does not keep and replay sidecars of all but the newest
     checkpoint; returns the deleted files."""
-    models = {it: p for p in folder.glob("model_*.pt") if (it := checkpoint_iteration(p.name)) is not None}
+    models = checkpoints_in(folder)
     keep = kept_iterations(list(models), last, every)
     newest = max(models, default=None)
     doomed = [p for it, p in models.items() if it not in keep]
-    doomed += [p for p in folder.glob("amp_replay_*.pt")
-               if (it := replay_iteration(p.name)) is not None and it != newest]
+    doomed += [p for it, p in replays_in(folder).items() if it != newest]
     for path in doomed:
         with contextlib.suppress(OSError):
             path.unlink()
@@ -195,10 +195,6 @@ def replay_path(checkpoint: Path) -> Path | None:
     return None if iteration is None else checkpoint.with_name(replay_file(iteration))
 
 
-def checkpoint_path(folder: Path, iteration: int) -> Path:
-    return folder / checkpoint_file(iteration)
-
-
 # ------------------------------------------------------------------------------ random state
 def capture_rng(env_generator: torch.Generator | None = None) -> dict[str, Any]:
     """Every random-number state a training iteration draws from, as weights-only data."""
@@ -234,46 +230,26 @@ def restore_rng(state: dict[str, Any], env_generator: torch.Generator | None = N
         env_generator.set_state(state["env"].cpu())
 
 
-def checkpoint_files(run_dir: Path) -> list[Path]:
-    """A run's checkpoints (model_<iter>.pt), newest first."""
-    found = [(checkpoint_iteration(p.name), p) for p in (Path(run_dir) / CHECKPOINT_DIR).glob("model_*.pt")]
-    return [p for _it, p in sorted(((it, p) for it, p in found if it is not None), reverse=True)]
-
-
 def newest_readable_checkpoint(run_dir: Path, map_location: str | torch.device | None = "cpu",
                                report: Callable[[str], None] = print) -> Path | None:
-    """The newest checkpoint that reads back whole (None when there is none).
-
-    A truncated or corrupt newest file (a disk that filled, a copy cut short) falls back to
-    the previous one, with a line saying so. A file refused for holding code, or one of
-    another model, is not skipped: CheckpointError, since falling back would hide it."""
-    for path in checkpoint_files(run_dir):
-        try:
-            read_checkpoint(path, map_location)
-        except UnreadableCheckpoint as exc:
-            report(f"skipping {exc}")
-            continue
-        return path
-    return None
+    """The newest checkpoint that reads back whole (None when there is none; the choice:
+    `detach.runfolder.checkpoints.newest_readable`). A truncated or corrupt newest file falls
+    back to the previous one, with a line saying so; a file refused for holding code, or one
+    of another model, is not skipped: CheckpointError, since falling back would hide it."""
+    return newest_readable(run_dir, lambda path: read_checkpoint(path, map_location), UnreadableCheckpoint, report)
 
 
 def run_policy_checkpoint(run_dir: Path, map_location: str | torch.device | None = "cpu",
                           report: Callable[[str], None] = print) -> Path | None:
     """A run's policy: the checkpoint selection.json chose on validation trials
-    (`train.select_checkpoint_trials`), else the newest that reads back whole. Every reader of
-    a run's policy (evaluation, play, export, a later stage's `train.init_from`) goes through
-    here, so a later stage starts from the very file the run was evaluated with."""
+    (`train.select_checkpoint_trials`), else the newest that reads back whole
+    (`detach.runfolder.checkpoints.policy_checkpoint`). Every reader of a run's policy
+    (evaluation, play, export, a later stage's `train.init_from`) goes through here."""
     try:
-        chosen = selected_checkpoint(Path(run_dir))
+        return policy_checkpoint(run_dir, lambda path: read_checkpoint(path, map_location), UnreadableCheckpoint,
+                                 report)
     except ContractError as exc:
         raise CheckpointError(str(exc)) from None
-    if chosen is not None:
-        try:
-            read_checkpoint(chosen, map_location)
-            return chosen
-        except UnreadableCheckpoint as exc:
-            report(f"skipping the selected checkpoint: {exc}")
-    return newest_readable_checkpoint(run_dir, map_location, report)
 
 
 def find_init_checkpoint(source: str, report: Callable[[str], None] = print) -> tuple[Path, Path | None]:
@@ -290,5 +266,5 @@ def find_init_checkpoint(source: str, report: Callable[[str], None] = print) -> 
         return chosen, path
     if path.is_file():
         run = path.parent.parent
-        return path, run if (run / CONFIG_FILE).is_file() else None
+        return path, run if RunFolder(run).config_path.is_file() else None
     raise ConfigError(f"train.init_from: {source} is neither a run folder nor a checkpoint file")

@@ -39,7 +39,8 @@ import torch
 from rsl_rl.runners import OnPolicyRunner
 from tqdm import tqdm
 
-from detach.run_contract import PROVENANCE_FILE, checkpoint_file, replay_file
+from detach.runfolder.folder import RunFolder
+from detach.runfolder.names import checkpoint_file, replay_file
 from detach.train.amp_ppo import REPLAY_KEY
 from detach.train.checkpoints import (
     CheckpointError, capture_rng, check_model, describe_mismatch, disk_room_warning, first_line, folder_bytes,
@@ -383,7 +384,7 @@ class DetachRunner(OnPolicyRunner):
     # ------------------------------------------------------------------ logging sinks
     def _code_state_files(self) -> list[str]:
         """What rsl-rl's Logger uploads as the code state (W&B): the run's provenance.json."""
-        path = Path(self.logger.log_dir or ".") / PROVENANCE_FILE
+        path = RunFolder(Path(self.logger.log_dir or ".")).provenance_path
         return [str(path)] if self.logger.log_dir and path.exists() else []
 
     def write_metrics(self, it: int, metrics: dict[str, float]) -> None:

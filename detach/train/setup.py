@@ -23,7 +23,8 @@ from detach.envs.lh_env import LHEnv
 from detach.models.factory import DEFAULT_OBS_GROUPS, rsl_rl_model_cfgs
 from detach.models.losses import combine_aux_losses
 from detach.motion import default_motion_lib
-from detach.run_contract import CONFIG_FILE
+from detach.runfolder.folder import RunFolder
+from detach.runfolder.names import CONFIG_FILE
 from detach.skills import canonical_name
 from detach.train.action_bounds import action_bound_loss
 from detach.train.checkpoints import CheckpointError, find_init_checkpoint, read_checkpoint
@@ -196,7 +197,7 @@ def load_initial_weights(runner: DetachRunner, cfg: RunConfig) -> str:
     source_model = "?"
     if run is not None:
         try:
-            source_cfg = load_run_config(run / CONFIG_FILE)
+            source_cfg = load_run_config(RunFolder(run).config_path)
             source_model = f"{source_cfg.model_name} ({source_cfg.model.kind})"
         except ConfigError:
             source_model = f"? (unreadable {CONFIG_FILE})"

@@ -37,7 +37,8 @@ from detach.config import load_run_config
 from detach.config_schema import RunConfig
 from detach.envs.lh_env import LHEnv
 from detach.envs.oracle import ORACLE_GROUP
-from detach.run_contract import CONFIG_FILE
+from detach.runfolder.folder import RunFolder
+from detach.runfolder.names import CONFIG_FILE
 from detach.skills import canonical_name
 from detach.train.checkpoints import find_init_checkpoint
 from detach.train.trained_actor import load_trained_actor
@@ -62,7 +63,7 @@ def teacher_source(source: str) -> tuple[Path, Path]:
         checkpoint, run = find_init_checkpoint(source)
     except ConfigError as exc:  # worded for train.init_from
         raise ValueError(str(exc).removeprefix("train.init_from: ")) from None
-    if run is None or not (run / CONFIG_FILE).is_file():
+    if run is None or not RunFolder(run).config_path.is_file():
         raise ValueError(f"{source}: a teacher needs its run folder's {CONFIG_FILE} (the model it was trained "
                          "with); give the run folder or a checkpoint inside its checkpoints/")
     return checkpoint, run
@@ -129,5 +130,5 @@ def _build_teacher(found: tuple[Path, Path] | None, env: LHEnv, device: str | to
         env.provide_oracle_actions()
         return OracleTeacher()
     checkpoint, run = found
-    actor, _state = load_trained_actor(load_run_config(run / CONFIG_FILE), env, checkpoint, device)
+    actor, _state = load_trained_actor(load_run_config(RunFolder(run).config_path), env, checkpoint, device)
     return actor.requires_grad_(False)

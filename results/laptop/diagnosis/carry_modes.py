@@ -18,7 +18,7 @@ import torch
 
 from detach.envs.lh_env import make_env
 from detach.eval.episodes import run_evaluation
-from detach.runs.folder import RunFolder
+from detach.runfolder.folder import RunFolder
 from detach.runs.policy import load_policy
 from detach.runs.session import eval_config
 from detach.skills.carry import HAND_IDS, box_lifted

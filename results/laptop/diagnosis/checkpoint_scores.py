@@ -18,8 +18,8 @@ import torch
 
 from detach.envs.lh_env import make_env
 from detach.eval.episodes import run_evaluation
-from detach.run_contract import checkpoint_iteration
-from detach.runs.folder import RunFolder
+from detach.runfolder.names import checkpoint_iteration
+from detach.runfolder.folder import RunFolder
 from detach.runs.policy import load_policy
 from detach.runs.validation import validation_env, validation_score
 from detach.train.setup import apply_torch_threads, seed_everything

@@ -16,7 +16,7 @@ import torch
 
 from detach.character.body import BODY_NAMES, FEET, FOOT_TO_SOLE
 from detach.envs.lh_env import make_env
-from detach.runs.folder import RunFolder
+from detach.runfolder.folder import RunFolder
 from detach.runs.policy import load_policy
 from detach.train.setup import seed_everything
 

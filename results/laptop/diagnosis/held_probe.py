@@ -12,7 +12,7 @@ import torch
 
 from detach.character.puppet import GRASP_ACTION
 from detach.envs.lh_env import make_env
-from detach.runs.folder import RunFolder
+from detach.runfolder.folder import RunFolder
 from detach.runs.policy import load_policy
 
 

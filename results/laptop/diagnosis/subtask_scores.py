@@ -16,7 +16,7 @@ from pathlib import Path
 import torch
 
 from detach.eval.episodes import run_evaluation
-from detach.runs.folder import RunFolder
+from detach.runfolder.folder import RunFolder
 from detach.runs.policy import load_policy
 from detach.runs.validation import validation_env, validation_seed
 from detach.train.setup import apply_torch_threads

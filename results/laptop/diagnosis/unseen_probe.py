@@ -14,7 +14,7 @@ from pathlib import Path
 import torch
 
 from detach.envs.lh_env import make_env
-from detach.runs.folder import RunFolder
+from detach.runfolder.folder import RunFolder
 from detach.runs.policy import load_policy
 from detach.runs.session import eval_config
 from detach.train.setup import merge_normalizers, seed_everything

@@ -1,13 +1,8 @@
-"""A run folder on disk: creating it, its paths, its status, its checkpoints.
+"""A run folder on disk: creating it, its paths, its status, its evaluations.
 
-The format (file names, status.json, eval.json) is `detach.run_contract`. Every JSON/YAML
-file is replaced atomically (`run_contract.atomic_writer`: a fsynced temporary file, then a
-rename), so a reader never sees half a file, and files get the user's umask.
-
-Whether a run is really alive is not what status.json says: a `kill -9` leaves `running`
-behind. `owner_alive` asks the operating system when the recorded process is on this host
-and trusts the heartbeat (`updated`, refreshed by `detach.runs.job` every
-`HEARTBEAT_S`) when it is on another host sharing the runs folder.
+The format is this package's (`names`, `messages`, `eval_result`); every JSON/YAML file is
+replaced atomically (`atomic`), and every file is read through `files` (regular files of the
+folder, within a size cap). Whether the run's owner is alive: `liveness`.
 """
 
 from __future__ import annotations
@@ -15,32 +10,31 @@ from __future__ import annotations
 import contextlib
 import errno
 import json
-import math
 import os
 import secrets
-import socket
 import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Literal
+from typing import Any, Literal
 
 from detach.config import ConfigError, dump, load_run_config
 from detach.config_schema import RunConfig
-from detach.runs import files as run_files
-from detach.run_contract import (
-    CHECKPOINT_DIR, CONFIG_FILE, EVAL_FILE, LIVE_STATES, LOG_FILE, RUN_MARKERS, RUN_STATES, SELECTION_FILE,
-    REPLAY_PREFIX, STATUS_FILE, STDOUT_FILE, EvalResult, Status, atomic_writer, checkpoint_file, is_temp_file,
-    replay_iteration,
+from detach.runfolder import files as run_files
+from detach.runfolder.atomic import atomic_write_text
+from detach.runfolder.checkpoints import checkpoint_files, replays_in
+from detach.runfolder.eval_result import EvalResult, implausible
+from detach.runfolder.liveness import owner_alive, pid_alive, this_host
+from detach.runfolder.messages import RunSummary, Status
+from detach.runfolder.names import (
+    AGENT_PARAMS_FILE, CHECKPOINT_DIR, CONFIG_FILE, EVAL_FILE, EVAL_GLOB, EXPORT_DIR, LOG_FILE, PROVENANCE_FILE,
+    RUN_MARKERS, RUN_STATES, SELECTION_FILE, STATUS_FILE, STDOUT_FILE, checkpoint_file, eval_file, is_eval_file,
+    is_temp_file,
 )
+from detach.runfolder.summary import read_config_summary, summary_of_config
 
 RunState = Literal["queued", "running", "finished", "failed", "interrupted"]
 
-HEARTBEAT_S = 30.0
-"""How often a running job refreshes status.json's `updated` (detach.runs.job)."""
-STALE_AFTER_S = 600.0
-"""A run on another host whose status.json is older than this is taken for dead (generous:
-clocks of machines sharing a folder may disagree by minutes)."""
 MAX_JSON_BYTES = 16 * 1024 * 1024
 """status.json and eval*.json larger than this are refused unread (they are a few KB)."""
 
@@ -49,25 +43,10 @@ _STATUS_LOCK = threading.Lock()
 _NO_SPACE = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
 
 
-def this_host() -> str:
-    return socket.gethostname()
-
-
-def atomic_write_text(path: Path, text: str) -> None:
-    """Write `text` to `path` so that readers see the old or the new file, never a mix."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_writer(path, binary=False) as f:
-        f.write(text)
-
-
-def atomic_write_json(path: Path, data: Any) -> None:
-    atomic_write_text(path, json.dumps(data, indent=2, sort_keys=False) + "\n")
-
-
 def read_json(path: Path) -> Any:
     """A small JSON file of the run folder (OSError if missing, ValueError if malformed, too
     large, nested too deeply, not a regular file or a link out of its folder:
-    `detach.runs.files`)."""
+    `detach.runfolder.files`)."""
     return run_files.read_json(path.parent, path.name, MAX_JSON_BYTES)
 
 
@@ -85,53 +64,6 @@ def run_folder_name(cfg: RunConfig, now: float | None = None) -> str:
     """<YYYYmmdd-HHMMSS>-<task>-<model>-s<seed> (the run folder contract)."""
     stamp = time.strftime("%Y%m%d-%H%M%S", time.localtime(now))
     return f"{stamp}-{cfg.task_name}-{cfg.model_name}-s{cfg.seed}"
-
-
-def _process_start_time(pid: int) -> float | None:
-    """Unix time at which process `pid` started (Linux /proc), None if unknown."""
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-        boot = next(float(line.split()[1]) for line in Path("/proc/stat").read_text().splitlines()
-                    if line.startswith("btime "))
-        return boot + int(fields[19]) / os.sysconf("SC_CLK_TCK")
-    except (OSError, ValueError, IndexError, StopIteration):
-        return None
-
-
-def pid_alive(pid: int, since: float | None = None) -> bool:
-    """Whether process `pid` of this host exists (and, when `since` is given, started before
-    that time, within clock resolution: a pid reused by a newer process is not the run's)."""
-    if int(pid) <= 0:  # 0 and negative numbers name process groups, not a process
-        return False
-    try:
-        os.kill(int(pid), 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        pass  # another user's process: it exists
-    except (OverflowError, ValueError):
-        return False
-    if since is not None:
-        started = _process_start_time(int(pid))
-        if started is not None and started > since + 2.0:
-            return False
-    return True
-
-
-def owner_alive(status: Status, now: float | None = None) -> bool:
-    """Whether the process that status.json names may still be working on the run.
-
-    Finished, failed and interrupted runs have no owner. The current process is never
-    counted (it is the one asking). A pid of another host is not looked up here: that
-    machine's heartbeat (`updated`) decides."""
-    if status.state not in LIVE_STATES or not status.pid:
-        return False
-    if status.host and status.host != this_host():
-        return (now if now is not None else time.time()) - (status.updated or 0.0) < STALE_AFTER_S
-    if status.pid == os.getpid():
-        return False
-    # The owner wrote `updated` after it started; a process younger than that reused the pid.
-    return pid_alive(status.pid, since=status.updated)
 
 
 @dataclass
@@ -168,6 +100,31 @@ class RunFolder:
     def checkpoints(self) -> Path:
         return self.path / CHECKPOINT_DIR
 
+    @property
+    def provenance_path(self) -> Path:
+        return self.path / PROVENANCE_FILE
+
+    @property
+    def agent_params_path(self) -> Path:
+        """rsl-rl's train config of the run (params/agent.yaml)."""
+        return self.path / AGENT_PARAMS_FILE
+
+    @property
+    def export_dir(self) -> Path:
+        return self.path / EXPORT_DIR
+
+    def evaluation_path(self, task: str | None = None, trial_set: str | None = None) -> Path:
+        """Where the evaluation on `task` (None: the run's own) and `trial_set` goes (`eval_file`)."""
+        return self.path / eval_file(task, trial_set)
+
+    def evaluation_paths(self) -> list[Path]:
+        """Every eval*.json of the run, sorted by name."""
+        return sorted(self.path.glob(EVAL_GLOB))
+
+    def evaluation_names(self) -> list[str]:
+        """The names of the run's eval*.json files, sorted (OSError if the folder is unreadable)."""
+        return sorted(n for n in os.listdir(self.path) if is_eval_file(n))
+
     @classmethod
     def create(cls, parent: Path, cfg: RunConfig, now: float | None = None) -> "RunFolder":
         """Make a new folder (a numeric suffix if the name is taken) in state `queued`.
@@ -188,7 +145,7 @@ class RunFolder:
         try:
             run.checkpoints.mkdir()
             atomic_write_text(run.config_path, dump(cfg))
-            run.set_state("queued", iteration=0, run_id=secrets.token_hex(8))
+            run.set_state("queued", iteration=0, run_id=secrets.token_hex(8), summary=summary_of_config(cfg))
         except BaseException:
             run._remove_new_folder()
             raise
@@ -215,6 +172,22 @@ class RunFolder:
     def status(self) -> Status:
         """status.json (OSError if missing, ValueError if malformed)."""
         return Status.from_json(read_json(self.status_path))
+
+    def summary(self) -> RunSummary:
+        """Task, model, seed and samples per iteration: status.json's summary, else (a folder of
+        an earlier version) config.yaml's (`detach.runfolder.summary`). config.yaml is read
+        either way, as the dashboard's index reads it: a run folder whose config.yaml is
+        missing, refused or malformed is not summarised (OSError or ValueError for status.json,
+        ConfigError, one line, for config.yaml)."""
+        status = self.status()
+        try:
+            from_config = read_config_summary(self.path)
+        except FileNotFoundError:
+            raise ConfigError("file not found", str(self.config_path)) from None
+        except ValueError as exc:  # refused (a link out, too large, an alias bomb) or malformed
+            raise ConfigError(str(exc) if isinstance(exc, run_files.RunFileError) else
+                              f"{self.config_path}: {exc}") from None
+        return status.summary or from_config
 
     def run_id(self) -> str:
         """The run's id from status.json, which a copy of the folder shares; the folder name for
@@ -274,30 +247,14 @@ class RunFolder:
             return False
 
     def checkpoint_files(self) -> list[Path]:
-        """Checkpoints (model_<iter>.pt), newest first."""
-        from detach.train.checkpoints import checkpoint_files
-
+        """Checkpoints (model_<iter>.pt), newest first (the run's policy and the checkpoint to
+        resume from need torch to read: `detach.train.checkpoints`)."""
         return checkpoint_files(self.path)
 
     def latest_checkpoint(self) -> Path | None:
         """Checkpoint with the highest iteration number (model_<iter>.pt)."""
         files = self.checkpoint_files()
         return files[0] if files else None
-
-    def usable_checkpoint(self, map_location: str = "cpu", report: Callable[[str], None] = print) -> Path | None:
-        """The newest checkpoint that reads back whole; training resumes from it
-        (`detach.train.checkpoints.newest_readable_checkpoint`)."""
-        from detach.train.checkpoints import newest_readable_checkpoint
-
-        return newest_readable_checkpoint(self.path, map_location, report)
-
-    def policy_checkpoint(self, map_location: str = "cpu", report: Callable[[str], None] = print) -> Path | None:
-        """The run's policy: the checkpoint chosen on validation trials, else the newest that
-        reads back whole (`detach.train.checkpoints.run_policy_checkpoint`). Training resumes
-        from the newest (`usable_checkpoint`) whatever was selected."""
-        from detach.train.checkpoints import run_policy_checkpoint
-
-        return run_policy_checkpoint(self.path, map_location, report)
 
     def clear_selection(self) -> None:
         """Forget the chosen checkpoint (a resumed run trains on and chooses again)."""
@@ -309,9 +266,8 @@ class RunFolder:
         between the two files); returns what was removed. Call when taking ownership of the run."""
         removed = []
         if self.checkpoints.is_dir():
-            for path in self.checkpoints.glob(f"{REPLAY_PREFIX}*.pt"):
-                iteration = replay_iteration(path.name)
-                if iteration is not None and not (self.checkpoints / checkpoint_file(iteration)).exists():
+            for iteration, path in replays_in(self.checkpoints).items():
+                if not (self.checkpoints / checkpoint_file(iteration)).exists():
                     with contextlib.suppress(OSError):
                         path.unlink()
                         removed.append(path)
@@ -338,20 +294,6 @@ class RunFolder:
         return read_eval(self.eval_path)
 
 
-def implausible(result: EvalResult) -> str | None:
-    """Why numbers that follow the contract are still impossible (None when they are fine):
-    no trials, or a statistic that is not a finite number."""
-    if result.trials < 1:
-        return f"'trials' must be >= 1, found {result.trials}"
-    sgr = result.sgr.values() if isinstance(result.sgr, dict) else [result.sgr]
-    numbers = {"sgr": list(sgr), "mean_execution_time": [result.mean_execution_time],
-               "execution_time_ci": list(result.execution_time_ci or [])}
-    for key, values in numbers.items():
-        if any(v is not None and not (isinstance(v, (int, float)) and math.isfinite(v)) for v in values):
-            return f"'{key}' is not a finite number"
-    return None
-
-
 def read_eval(path: Path) -> EvalResult:
     """One eval*.json, checked (OSError, or ValueError naming the file and what is wrong)."""
     result = EvalResult.from_json(read_json(path), str(path))
@@ -361,9 +303,13 @@ def read_eval(path: Path) -> EvalResult:
     return result
 
 
+def is_run_folder(path: Path) -> bool:
+    """Whether `path` looks like a run folder (has config.yaml or status.json)."""
+    return any(os.path.exists(Path(path) / m) for m in RUN_MARKERS)
+
+
 def find_runs(parent: Path) -> list[RunFolder]:
     """Every folder under `parent` that looks like a run (has config.yaml or status.json)."""
     if not parent.is_dir():
         return []
-    return [RunFolder(p) for p in sorted(parent.iterdir())
-            if p.is_dir() and any((p / m).exists() for m in RUN_MARKERS)]
+    return [RunFolder(p) for p in sorted(parent.iterdir()) if p.is_dir() and is_run_folder(p)]

@@ -1,6 +1,10 @@
 """Incremental reader of a run's log.mcap: each refresh reads only the bytes added since.
 
-Why not `detach.runs.mcap_log.iter_messages`: it decompresses and parses the whole file on
+It returns the package's typed messages (`metric_messages`, `scene_message`,
+`episode_frames`); the raw JSON objects stay available (`metrics`, `scene`) for tools that
+show whatever a log holds.
+
+Why not `detach.runfolder.mcap_reader.iter_messages`: it decompresses and parses the whole file on
 every call (a 100 MB log takes seconds), and MCAP's own indexes sit in the summary section,
 which exists only after the writer closed the file. This reader walks the top-level records
 from the offset it reached last time. After every chunk the writer puts MessageIndex
@@ -17,7 +21,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import struct
 import threading
 import zlib
@@ -30,9 +33,9 @@ import lz4.frame
 import numpy as np
 import zstandard
 
-from detach.run_contract import EPISODE_TOPIC, METRICS_TOPIC, SCENE_TOPIC
-from detach.runs import files as run_files
-from server.episode import Episode, episode_from_frames
+from detach.runfolder import files as run_files
+from detach.runfolder.messages import ContractError, EpisodeFrame, MetricsMessage, SceneMessage
+from detach.runfolder.names import EPISODE_TOPIC, METRICS_TOPIC, SCENE_TOPIC
 
 MAGIC = b"\x89MCAP0\r\n"
 HEADER, FOOTER, SCHEMA, CHANNEL, MESSAGE, CHUNK, MESSAGE_INDEX = 1, 2, 3, 4, 5, 6, 7
@@ -42,9 +45,6 @@ _REC = struct.Struct("<BQ")
 _MSG_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
 _DATA_AT = _REC.size + _MSG_HEAD.size
 """Offset of a message's payload from the start of its record."""
-_EPISODE_RE = re.compile(rb'\{"episode":(-?\d+)(?:,"trial":(-?\d+))?(?:,"frame":(\d+))?')
-"""`EpisodeFrame.to_json` writes "episode", "trial" and "frame" first: a frame's recorded
-episode without parsing it (logs of earlier versions have no trial: trial 0)."""
 EpisodeKey = tuple[int, int]
 """(episode, trial) of a recorded episode: an evaluation records its trials under one episode
 number (the checkpoint's iteration)."""
@@ -116,7 +116,11 @@ class LogTail:
         self.metrics: list[dict[str, Any]] = []
         self.metric_times: list[float] = []
         """Log time of each /metrics message (Unix seconds; the wall-time axis of the curves)."""
+        self.metric_messages: list[tuple[MetricsMessage, float]] = []
+        """The /metrics messages that follow the format, with their log times (Unix seconds)."""
         self.scene: dict[str, Any] | None = None
+        self.scene_message: SceneMessage | None = None
+        """The latest /scene, typed; None without one or when it does not follow the format."""
         self.chunks: list[ChunkRef] = []
         self.complete = False
         """The footer and the closing magic were read: the writer closed the file."""
@@ -332,8 +336,16 @@ class LogTail:
         if topic == METRICS:
             self.metrics.append(msg)
             self.metric_times.append(log_time / 1e9)
+            try:
+                self.metric_messages.append((MetricsMessage.from_json(msg), log_time / 1e9))
+            except ContractError:
+                pass  # shown raw (`metrics`), left out of the typed series
         else:  # the latest: an evaluation appended to the log records its scene again
             self.scene = msg
+            try:
+                self.scene_message = SceneMessage.from_json(msg)
+            except (ContractError, KeyError, TypeError, ValueError):
+                self.scene_message = None
 
     def _top_level_message(self, content: bytes, pos: int, length: int) -> None:
         """Messages outside chunks (an unchunked writer): treat each as a one-record chunk."""
@@ -372,15 +384,10 @@ class LogTail:
                 return chunk.episodes
             eps, frames = [], []
             for at in chunk.bodies:
-                m = _EPISODE_RE.match(records, at + _DATA_AT)
-                if m is None or m.group(3) is None:  # not our writer's key order: parse it
-                    msg = self._payload(records, at)
-                    eps.append(_key(msg) if msg else NO_EPISODE)
-                    frame = msg.get("frame", -1) if msg else -1
-                    frames.append(frame if isinstance(frame, int) else -1)
-                else:
-                    eps.append((int(m.group(1)), int(m.group(2) or 0)))
-                    frames.append(int(m.group(3)))
+                msg = self._payload(records, at)
+                eps.append(_key(msg) if msg else NO_EPISODE)
+                frame = msg.get("frame", -1) if msg else -1
+                frames.append(frame if isinstance(frame, int) else -1)
             chunk.episodes, chunk.frames = eps, frames
         return chunk.episodes
 
@@ -423,9 +430,11 @@ class LogTail:
                     return eps[-1]
             return None
 
-    def load_episode(self, key: EpisodeKey | int | None = None) -> Episode | None:
-        """Frames of the recorded episode `key` ((episode, trial), or an episode number for
-        its trial 0; default: the newest) as arrays.
+    def episode_frames(self, key: EpisodeKey | int | None = None
+                       ) -> tuple[EpisodeKey, list[EpisodeFrame]] | None:
+        """(key, frames in file order) of the recorded episode `key` ((episode, trial), or an
+        episode number for its trial 0; default: the newest); None when it has no frame. Frames
+        that do not follow the format are left out.
 
         The newest episode is found by walking back from the end of the file, so a long log
         costs only the chunks of that episode; any other episode needs the full index
@@ -459,9 +468,11 @@ class LogTail:
                 for at, ep in zip(chunk.bodies, chunk.episodes or []):
                     if ep == key:
                         msg = self._payload(records, at)
-                        if msg is not None:
-                            frames.append(msg)
-            return episode_from_frames(key[0], frames, trial=key[1]) if frames else None
+                        try:
+                            frames.append(EpisodeFrame.from_json(msg))
+                        except (ContractError, TypeError, ValueError):
+                            continue
+            return (key, frames) if frames else None
 
 
 def _key(msg: dict[str, Any]) -> EpisodeKey:
