@@ -167,7 +167,7 @@ def replay_panel(s: Session) -> Panel:
             log = reader.log
             shown["log"][slot] = s.infos[run].log_version if run in s.infos else ()
             shown["scene"][slot] = log.scene
-            view.show(slot, log.scene, reader.path)
+            view.show(slot, log.scene)
             if slot == "a":
                 quietly(quiet, episode_dd, options=(options := list_episodes(log)),
                         value=options[0])

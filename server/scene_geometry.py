@@ -9,7 +9,6 @@ caps of every capsule), cylinders (capsule shafts, scaled per axis) and boxes.
 
 from __future__ import annotations
 
-import os
 import re
 from dataclasses import dataclass
 from functools import lru_cache
@@ -18,6 +17,8 @@ from typing import Any, Sequence
 
 import numpy as np
 import trimesh
+
+from scene_builder.assets import default_assets_root
 
 
 TARGET_COLOR = (220, 40, 40)
@@ -114,24 +115,20 @@ def unit_mesh(kind: str) -> trimesh.Trimesh:
 
 
 # --- furniture meshes -------------------------------------------------------------------------
-def find_mesh(path: str | None, run_dir: Path) -> Path | None:
+def find_mesh(path: str | None, root: Path | None = None) -> Path | None:
     """The asset mesh a /scene object names (`<category>/<model_id>/mesh.obj`; older logs
     wrote an absolute path, of which only those last three parts count), looked up under the
-    assets roots: $DETACH_ASSETS, ./assets and an assets/ folder beside the runs folder. A
-    name that would leave its root finds nothing: the dashboard opens no other file."""
+    assets root the CLI builds and trains from (`root`, default `default_assets_root()`:
+    $DETACH_ASSETS, else ./assets), so the dashboard draws what a run of that root used. A name
+    that would leave the root finds nothing: the dashboard opens no other file."""
     if not path:
         return None
     parts = Path(path).parts[-3:]
     if len(parts) != 3 or parts[-1] != "mesh.obj" or any(p in ("", ".", "..") for p in parts):
         return None
-    for root in (os.environ.get("DETACH_ASSETS"), "assets", run_dir.parent.parent / "assets"):
-        if not root:
-            continue
-        base = Path(root).resolve()
-        candidate = (base / Path(*parts)).resolve()
-        if candidate.is_relative_to(base) and candidate.is_file():
-            return candidate
-    return None
+    base = Path(root if root is not None else default_assets_root()).resolve()
+    candidate = (base / Path(*parts)).resolve()
+    return candidate if candidate.is_relative_to(base) and candidate.is_file() else None
 
 
 def target_color(target: dict[str, Any]) -> tuple[int, int, int]:

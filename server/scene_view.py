@@ -10,7 +10,6 @@ stays smooth at 30 fps; a frame node per body would be 15+ messages per frame.
 from __future__ import annotations
 
 import zlib
-from pathlib import Path
 from typing import Any, Callable, ContextManager, Sequence
 
 import numpy as np
@@ -87,7 +86,7 @@ class RunScene:
         self._targets, self.targets = [], []
         self._character_shown = self.shown = False
 
-    def show(self, scene: dict[str, Any] | None, run_dir: Path, offset: np.ndarray) -> list[str]:
+    def show(self, scene: dict[str, Any] | None, offset: np.ndarray) -> list[str]:
         """Draw a /scene message; returns notes for the user (e.g. meshes drawn as boxes).
 
         A malformed message is drawn as far as it goes and the rest becomes a note: a
@@ -96,7 +95,7 @@ class RunScene:
         self.notes = []
         scene = scene if isinstance(scene, dict) else {}
         try:
-            self._show(scene, run_dir, offset)
+            self._show(scene, offset)
         except Exception as exc:  # noqa: BLE001
             self.notes.append(f"the /scene message could not be drawn completely ({exc!r:.160})")
         self.shown = True
@@ -107,7 +106,7 @@ class RunScene:
         if self._root is not None:
             self._root.position = tuple(float(v) for v in self.offset)
 
-    def _show(self, scene: dict[str, Any], run_dir: Path, offset: np.ndarray) -> None:
+    def _show(self, scene: dict[str, Any], offset: np.ndarray) -> None:
         self.bounds = self._guard("bounds", scene_bounds, scene) or scene_bounds({})
         self.offset = np.asarray(offset, dtype=float)
         lo, hi = self.bounds
@@ -122,7 +121,7 @@ class RunScene:
                 position=(float(centre[0]), float(centre[1]), 0.0), cell_size=0.5,
                 section_size=1.0, plane_color=(235, 235, 235), plane_opacity=0.6))
             for i, obj in enumerate(as_list(scene.get("objects"))):
-                self._guard(f"object {i}", self._add_object, i, obj, run_dir)
+                self._guard(f"object {i}", self._add_object, i, obj)
             trajectories = scene.get("trajectories")
             for key, way in (trajectories.items() if isinstance(trajectories, dict) else ()):
                 self._guard(f"trajectory {key}", self._add_trajectory, str(key), way)
@@ -155,7 +154,7 @@ class RunScene:
         self._handles.append(handle)
         self._targets.append(handle)
 
-    def _add_object(self, i: int, obj: dict[str, Any], run_dir: Path) -> None:
+    def _add_object(self, i: int, obj: dict[str, Any]) -> None:
         name = str(obj.get("name", f"object_{i}"))
         node = f"/{self.slot}/objects/{i}_{node_name(name)}"
         pose = dict(position=tuple(float(v) for v in obj.get("pos", (0, 0, 0))),
@@ -163,7 +162,7 @@ class RunScene:
         static = bool(obj.get("static", True))
         color = (STATIC_COLORS[zlib.crc32(str(obj.get("category", "")).encode())
                                % len(STATIC_COLORS)] if static else DYNAMIC_COLOR)
-        path = find_mesh(obj.get("mesh"), run_dir)
+        path = find_mesh(obj.get("mesh"))
         mesh = load_mesh(path) if path is not None else None
         if mesh is not None:
             handle = self.scene.add_mesh_simple(node, mesh[0], mesh[1], color=color,
@@ -290,11 +289,11 @@ class SceneView:
         self.b = RunScene(client.scene, client.atomic, "b")
         self._framed: tuple[np.ndarray, np.ndarray] | None = None
 
-    def show(self, slot: str, scene: dict[str, Any] | None, run_dir: Path) -> list[str]:
+    def show(self, slot: str, scene: dict[str, Any] | None) -> list[str]:
         """Draw a run in slot 'a' or 'b' (B sits to the right of A); frames the camera when
         the layout changed, so a run with the same layout keeps the user's view."""
         target = self.a if slot == "a" else self.b
-        notes = target.show(scene, run_dir, np.zeros(3))
+        notes = target.show(scene, np.zeros(3))
         self.place_b()
         self.frame_camera()
         return notes

@@ -12,6 +12,7 @@ changes the 3D view. Screenshots are saved in the test's tmp dir. WebGL renders 
 from __future__ import annotations
 
 import io
+import os
 import re
 import subprocess
 import sys
@@ -52,6 +53,7 @@ def dashboard(tmp_path: Path):
                      assets=tmp_path / "assets", iterations=8, frames=0)
     proc = subprocess.Popen([sys.executable, "-m", "server.cli", "--runs", str(tmp_path / "runs"),
                              "--port", "0", "--poll", "0.5"], cwd=ROOT, stdout=subprocess.PIPE,
+                            env={**os.environ, "DETACH_ASSETS": str(tmp_path / "assets")},
                             stderr=subprocess.STDOUT, text=True)
     t0, url, seen = time.monotonic(), None, []
     assert proc.stdout is not None

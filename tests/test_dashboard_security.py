@@ -201,11 +201,25 @@ def test_a_scene_mesh_outside_the_assets_root_is_never_opened(tmp_path: Path, mo
     (assets / "chair" / "link").symlink_to(secret.parent, target_is_directory=True)
     monkeypatch.setenv("DETACH_ASSETS", str(assets))
     monkeypatch.chdir(tmp_path)
-    run_dir = tmp_path / "runs" / "run"
-    assert find_mesh("chair/chair_v0/mesh.obj", run_dir) == inside.resolve()
-    assert find_mesh("/elsewhere/assets/chair/chair_v0/mesh.obj", run_dir) == inside.resolve()
+    assert find_mesh("chair/chair_v0/mesh.obj") == inside.resolve()
+    assert find_mesh("/elsewhere/assets/chair/chair_v0/mesh.obj") == inside.resolve()
     for name in (str(secret), "../secret/chair/leak/mesh.obj", "../../secret/chair/leak/mesh.obj",
                  "chair/../../secret/chair/leak/mesh.obj", "chair/link/mesh.obj", "/etc/passwd",
                  "chair/chair_v0/../../../secret/chair/leak/mesh.obj", "", None):
-        assert find_mesh(name, run_dir) is None, name
+        assert find_mesh(name) is None, name
     assert os.path.exists(secret)
+
+
+def test_the_dashboard_looks_for_meshes_where_the_cli_builds_them(tmp_path: Path, monkeypatch) -> None:
+    """One assets root for training and drawing ($DETACH_ASSETS, else ./assets): before, the
+    dashboard also searched ./assets when $DETACH_ASSETS was set and an assets/ folder beside
+    the runs folder, so it could draw a mesh the run never used."""
+    for root in ("built", "assets"):
+        mesh = tmp_path / root / "chair" / "chair_v0" / "mesh.obj"
+        mesh.parent.mkdir(parents=True)
+        mesh.write_text("v 0 0 0\n")
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("DETACH_ASSETS", str(tmp_path / "built"))
+    assert find_mesh("chair/chair_v0/mesh.obj") == (tmp_path / "built" / "chair" / "chair_v0" / "mesh.obj").resolve()
+    monkeypatch.setenv("DETACH_ASSETS", str(tmp_path / "empty"))
+    assert find_mesh("chair/chair_v0/mesh.obj") is None  # ./assets is not also searched
