@@ -21,7 +21,8 @@ from detach.runs.export import export_run
 from detach.runs.folder import RunFolder, atomic_write_json, atomic_write_text, read_eval
 from detach.runs.provenance import last_git
 from detach.runs.session import eval_config, eval_path, evaluate_policy_file
-from detach.runs.sweep import cells, existing_runs, load_sweep
+from detach.runs.sweep_config import load_sweep
+from detach.runs.sweep_graph import cells, existing_runs
 
 MANIFEST = "manifest.json"
 
