@@ -1,28 +1,25 @@
 """`detach-run`: train, evaluate, resume, sweep, play and export runs; list runs; print the paper's
 tables; list config keys.
 
-User errors (bad config, bad flag, missing file) print one line and exit with code 2;
-tracebacks are reserved for bugs (and go to the run's stdout.log).
+This module only parses: each command calls a function of the API, `detach.runs.actions`
+(list, table and keys their report modules). User errors (bad config, bad flag, missing file)
+print one line and exit with code 2 (`detach.runs.command`); tracebacks are reserved for bugs
+(and go to the run's stdout.log). The earlier forms (`detach-run TASK`, `--resume`, `--eval`,
+`--sweep`) still work for one release, with a one-line deprecation on stderr.
 """
 
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
-import threading
-import time
 import typing
 from pathlib import Path
 from typing import Callable, Sequence
 
-from detach.config import ConfigError, dump, resolve
-from detach.config_schema import RunConfig
+from detach.config import ConfigError
 from detach.eval.trial_sets import MIN_TEST_SEED_OFFSET
-from detach.runfolder.names import EXPORT_FORMATS
-from detach.runfolder.folder import RunFolder, run_folder_name
-
-EXIT_USAGE = 2
+from detach.runs import actions
+from detach.runs.command import run_command
 
 DESCRIPTION = """\
 Run the DETACH study: train a model on a task, evaluate it, resume it, sweep a grid.
@@ -39,8 +36,9 @@ Run the DETACH study: train a model on a task, evaluate it, resume it, sweep a g
   detach-run table configs/sweeps/table1.yaml                 the paper's table from eval.json files
   detach-run keys [sim|env|rewards|eval|model|model.detach|train|task]   every config key
 
-Each subcommand has its own --help. The earlier forms still work: `detach-run TASK ...`
-(= train), `--resume RUN_DIR`, `--eval RUN_DIR`, `--sweep SWEEP_YAML`, and `--out` for `--runs`.
+Each subcommand has its own --help. The earlier forms are deprecated (they still work, for one
+release, and say so on stderr): `detach-run TASK ...` (= train), `--resume RUN_DIR`,
+`--eval RUN_DIR`, `--sweep SWEEP_YAML`; `--out` is still accepted for `--runs`.
 
 A task is a name (follow, carry, climb, sit, lh1, lh2, lh3: configs/tasks/ of the working
 directory, else the ones shipped with detach) or a path to a task YAML.
@@ -95,10 +93,6 @@ DEFAULTS = dict(task=None, overrides=[], preset=[], model="detach", seed=0, devi
                 eval_on=[], trials=None, no_eval=False, quick=False, jobs=1, models=None, seeds=None,
                 launcher="local", cell=None, video=None, replace=False, test_trials=None, policy_seed=None)
 """Every option a command handler reads; a subcommand's parser sets those it has."""
-
-
-TEST_TRIALS_CELLS_ONLY = ("--test-trials: the held-out test trials are played only for a sweep's cells "
-                          "(detach-run sweep passes it); evaluate other runs on the development trials")
 
 
 def version() -> str:
@@ -389,65 +383,23 @@ PARSERS: dict[str, Callable[[], argparse.ArgumentParser]] = {
     "list": build_list_parser, "table": build_table_parser, "keys": build_keys_parser}
 
 
-def task_path(task: str | Path, option: str = "") -> Path:
-    """A task name (`lh1`) or path, as the path of its YAML; ConfigError naming the option."""
-    from detach.config import find_task_file
-
-    try:
-        return find_task_file(task)
-    except ConfigError as exc:
-        if option:
-            raise ConfigError(f"{option}: {exc}") from None
-        raise
-
-
-def check_device(device: str) -> None:
-    """Fail early, as a user error, on a device this machine does not have."""
-    if device == "cpu":
-        return
-    index = device.removeprefix("cuda:") if device.startswith("cuda:") else ""
-    if not (device == "cuda" or index.isdigit()):
-        raise ConfigError(f"--device: expected cpu, cuda or cuda:N, found '{device}'")
-    import torch
-
-    if not torch.cuda.is_available():
-        raise ConfigError(f"--device {device}: CUDA is not available on this machine "
-                          f"(torch {torch.__version__}); use --device cpu")
-    if index and int(index) >= torch.cuda.device_count():
-        raise ConfigError(f"--device {device}: this machine has {torch.cuda.device_count()} CUDA device(s) "
-                          f"(cuda:0 to cuda:{torch.cuda.device_count() - 1})")
-
-
-def _fail(exc: Exception) -> int:
-    print(f"detach-run: error: {exc}", file=sys.stderr)
-    return EXIT_USAGE
-
-
-EXIT_INTERRUPTED = 130
-
-
-def _interrupt(signum: int, _frame: object) -> None:
-    raise KeyboardInterrupt(signal.Signals(signum).name)
+DEPRECATED = {"train": "`detach-run TASK ...` is now `detach-run train TASK ...`",
+              "resume": "`detach-run --resume RUN_DIR` is now `detach-run resume RUN_DIR`",
+              "eval": "`detach-run --eval RUN_DIR` is now `detach-run eval RUN_DIR`",
+              "sweep": "`detach-run --sweep SWEEP_YAML` is now `detach-run sweep SWEEP_YAML`"}
+"""The earlier form of each command, as its deprecation line says it."""
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command; SIGTERM anywhere (start-up included) ends it like Ctrl-C: exit 130."""
-    if threading.current_thread() is not threading.main_thread():
-        return _main(argv)
-    previous = signal.signal(signal.SIGTERM, _interrupt)
-    try:
-        return _main(argv)
-    except KeyboardInterrupt as exc:
-        print(f"detach-run: interrupted ({str(exc) or 'SIGINT'})", file=sys.stderr)
-        return EXIT_INTERRUPTED
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+    return run_command(lambda: _main(list(sys.argv[1:] if argv is None else argv)))
 
 
 def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     """`detach-run COMMAND ...` or the earlier forms, as one namespace with `command` set and
-    every option of `DEFAULTS` present."""
+    every option of `DEFAULTS` present; `deprecated` says which earlier form was used (or None)."""
     argv = list(argv)
+    deprecated = None
     if argv and argv[0] in PARSERS:
         command, parser = argv[0], PARSERS[argv[0]]()
         args = parser.parse_intermixed_args(argv[1:]) if command in ("train", "resume") \
@@ -458,377 +410,104 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
         if command != "train" and args.task:
             # No TASK in these modes: a positional key=value is an override.
             args.overrides, args.task = [args.task, *args.overrides], None
+        if argv:
+            deprecated = f"deprecated: {DEPRECATED[command]} (the earlier form goes in the next release)"
     for key, value in DEFAULTS.items():
         if not hasattr(args, key):
             setattr(args, key, value)
-    args.command = command
+    args.command, args.deprecated = command, deprecated
     return args
 
 
-def _main(argv: Sequence[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    try:
-        args = parse_args(argv)
-        if args.command == "list":
-            from detach.runs.listing import print_runs
-
-            return print_runs(args.positional_runs or args.runs)
-        if args.command == "table":
-            from detach.runs.tables_cli import print_table
-
-            return print_table(args.source, args.runs, args.kind, args.out, args.task, args.sgr,
-                               "quick" if args.quick else args.preset, args.seeds, args.trial_set)
-        if args.command == "keys":
-            return _keys(args.section)
-        if args.command == "export":
-            return _export(args)
-        check_device(args.device)
-        if args.command == "play":
-            return _play(args)
-        if args.command == "sweep":
-            from detach.runs.sweep import run_sweep
-
-            if len(args.preset) > 1:
-                raise ConfigError("--sweep takes one --preset (one of the sweep's presets)")
-            failed = run_sweep(args.sweep, args.runs, args.jobs, args.quick, args.device,
-                               launcher=args.launcher, preset=next(iter(args.preset), None),
-                               models=args.models.split(",") if args.models else None, seeds=args.seeds)
-            return 1 if failed else 0
-        if args.command == "resume":
-            return _resume(args)
-        if args.command == "eval":
-            return _evaluate(args)
-        return _train(args)
-    except ConfigError as exc:
-        return _fail(exc)
+def _main(argv: Sequence[str]) -> int:
+    args = parse_args(argv)
+    if args.deprecated:
+        print(f"detach-run: {args.deprecated}", file=sys.stderr)
+    return HANDLERS[args.command](args)
 
 
-def _keys(section: str | None) -> int:
+def _train(args: argparse.Namespace) -> int:
+    if args.task is None:
+        raise ConfigError("missing TASK (or use a command: " + ", ".join(COMMANDS) + ")")
+    options = dict(seed=args.seed, device=args.device, presets=args.preset, overrides=args.overrides,
+                   eval_on=args.eval_on, trials=args.trials, test_offset=args.test_trials, cell=args.cell)
+    if args.dry_run:
+        actions.print_dry_run(actions.train_config(args.task, args.model, **options), args.runs)
+        return 0
+    outcome = actions.train(args.task, args.model, runs=args.runs, evaluate=not args.no_eval, **options)
+    if outcome.code == 0 and outcome.run is not None and not args.cell:
+        print(f"next: detach-dashboard --runs {args.runs}  (curves, 3D replay of the evaluation, tables; "
+              f"loopback http://127.0.0.1:8080)")
+    return outcome.code
+
+
+def _resume(args: argparse.Namespace) -> int:
+    options = dict(overrides=args.overrides, device=args.device, trials=args.trials, test_offset=args.test_trials)
+    if args.dry_run:
+        actions.print_resume_plan(actions.resume_plan(args.resume, **options))
+        return 0
+    return actions.resume(args.resume, eval_on=args.eval_on, evaluate=not args.no_eval, **options).code
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    actions.evaluate(args.eval, task=args.eval_task, trials=args.trials, test_offset=args.test_trials,
+                     replace=args.replace, device=args.device, seed=args.policy_seed, video=args.video)
+    return 0
+
+
+def _sweep(args: argparse.Namespace) -> int:
+    if len(args.preset) > 1:
+        raise ConfigError("--sweep takes one --preset (one of the sweep's presets)")
+    failed = actions.sweep(args.sweep, runs=args.runs, jobs=args.jobs, quick=args.quick, device=args.device,
+                           launcher=args.launcher, preset=next(iter(args.preset), None),
+                           models=args.models.split(",") if args.models else None, seeds=args.seeds)
+    return 1 if failed else 0
+
+
+def _play(args: argparse.Namespace) -> int:
+    actions.play(args.target, task=args.eval_task, device=args.device, video=args.video, episodes=args.episodes,
+                 steps=args.steps, host=args.host, port=args.port, size=(args.width, args.height))
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    """A run's policy (`actions.export`), or with a sweep YAML its cells' (`actions.export_sweep`)."""
+    if args.target.suffix in (".yaml", ".yml"):
+        actions.export_sweep(args.target, stage=args.stage, output=args.output, runs=args.runs, preset=args.preset,
+                             seeds=args.seeds, models=args.models.split(",") if args.models else None,
+                             trials=args.trials, device=args.device, fmt=args.fmt, checkpoint=args.checkpoint)
+    else:
+        actions.export(args.target, checkpoint=args.checkpoint, fmt=args.fmt, output=args.output)
+    return 0
+
+
+def _list(args: argparse.Namespace) -> int:
+    from detach.runs.listing import print_runs
+
+    return print_runs(args.positional_runs or args.runs)
+
+
+def _table(args: argparse.Namespace) -> int:
+    from detach.runs.tables_cli import print_table
+
+    return print_table(args.source, args.runs, args.kind, args.out, args.task, args.sgr,
+                       "quick" if args.quick else args.preset, args.seeds, args.trial_set)
+
+
+def _keys(args: argparse.Namespace) -> int:
     from detach.config_keys import format_keys, select
 
     try:
-        keys = select(section)
+        keys = select(args.section)
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
     print(format_keys(keys))
     return 0
 
 
-def _export(args: argparse.Namespace) -> int:
-    """`detach.runs.export.export_run(run_dir, checkpoint=N|None, fmt='onnx'|'jit'|'init', output=Path|None)`;
-    of a sweep, `detach.runs.ship.ship_sweep`."""
-    if args.target.suffix in (".yaml", ".yml"):
-        return _ship(args)
-    from detach.runs.export import export_run
-
-    exported = export_run(args.target, checkpoint=args.checkpoint, fmt=args.fmt, output=args.output)
-    print(f"exported to {exported}")
-    return 0
-
-
-def _ship(args: argparse.Namespace) -> int:
-    if args.stage is None or args.output is None:
-        raise ConfigError("exporting a sweep's policies needs --stage (e.g. lh1) and --output FOLDER", str(args.target))
-    if args.fmt not in ("onnx", "policy") or args.checkpoint is not None:  # onnx: the default, not chosen
-        raise ConfigError("a sweep's policies are exported as --format policy, each cell's own policy "
-                          "(no --checkpoint)", str(args.target))
-    from detach.runs.ship import ship_sweep
-
-    manifest = ship_sweep(args.target, args.runs, args.output, args.stage, preset=args.preset, seeds=args.seeds,
-                          models=args.models.split(",") if args.models else None, trials=args.trials,
-                          device=args.device)
-    print(f"manifest written to {manifest}")
-    return 0
-
-
-def _play(args: argparse.Namespace) -> int:
-    run, checkpoint = _run_and_checkpoint(args.target)
-    eval_task = task_path(args.eval_task, "--task") if args.eval_task else None
-    if args.video is not None:
-        _choose_gl()
-    from server.play_view import play
-
-    return play(run, checkpoint, eval_task, device=args.device, video=args.video, episodes=args.episodes,
-                steps=args.steps, host=args.host, port=args.port, size=(args.width, args.height))
-
-
-def _run_and_checkpoint(target: Path) -> tuple[RunFolder, Path | None]:
-    """A run folder or one of its checkpoint files -> (run, that checkpoint or None)."""
-    if not target.exists():
-        raise ConfigError("run folder or checkpoint not found", str(target))
-    checkpoint = target if target.is_file() else None
-    run = RunFolder(target.parent.parent if checkpoint else target)
-    if not run.config_path.exists():
-        raise ConfigError("not a run folder (no config.yaml)", str(run.path))
-    if checkpoint is None and run.latest_checkpoint() is None:
-        raise ConfigError("run has no checkpoint", str(run.path))
-    return run, checkpoint
-
-
-def _train(args: argparse.Namespace) -> int:
-    if args.task is None:
-        raise ConfigError("missing TASK (or use a command: " + ", ".join(COMMANDS) + ")")
-    task = task_path(args.task)
-    eval_on = [task_path(extra, "--eval-on") for extra in args.eval_on]
-    if args.test_trials is not None and not args.cell:
-        raise ConfigError(TEST_TRIALS_CELLS_ONLY)
-    from detach.train.checks import complete_run_config
-
-    cfg = complete_run_config(resolve(task, args.model, args.overrides, seed=args.seed, device=args.device,
-                                      presets=args.preset))
-    cfg = _with_trials(cfg, args.trials)  # recorded: a resume or re-evaluation repeats them
-    if args.dry_run:
-        sys.stdout.write(dump(cfg))
-        print(f"# run folder: {args.runs / run_folder_name(cfg)}")
-        return 0
-    from detach.train.distributed import is_worker
-
-    if is_worker():  # torchrun rank > 0: trains in step with rank 0, which alone writes the run folder
-        from detach.train.setup import train_worker
-
-        train_worker(cfg)
-        return 0
-    from detach.runs.job import run_job
-    from detach.runs.session import train_and_evaluate
-
-    try:
-        run = RunFolder.create(args.runs, cfg)
-        if args.cell:
-            run.set_state("queued", cell=args.cell)
-    except OSError as exc:
-        blocker = next((p for p in (Path(args.runs), *Path(args.runs).parents) if p.exists()), None)
-        why = f"{blocker} is a file" if blocker is not None and not blocker.is_dir() else exc.strerror or exc
-        raise ConfigError(f"cannot create a run folder under --runs {args.runs} ({why}); "
-                          f"expected a writable folder") from None
-    print(f"run folder: {run.path}")
-    code = run_job(run, lambda r: train_and_evaluate(
-        r, resume=False, eval_tasks=eval_on, trials=None, evaluate=not args.no_eval,
-        test_offset=args.test_trials))
-    print(f"run folder: {run.path}")
-    if code == 0 and not args.cell:
-        print(f"next: detach-dashboard --runs {args.runs}  (curves, 3D replay of the evaluation, tables; "
-              f"loopback http://127.0.0.1:8080)")
-    return code
-
-
-def _with_trials(cfg: RunConfig, trials: int | None) -> RunConfig:
-    """`--trials N` as `eval.trials` of the config (None: the config's own)."""
-    import dataclasses
-
-    if trials is None:
-        return cfg
-    return dataclasses.replace(cfg, eval=dataclasses.replace(cfg.eval, trials=trials))
-
-
-def _resume(args: argparse.Namespace) -> int:
-    run = RunFolder(args.resume)
-    if not run.config_path.exists():
-        raise ConfigError("not a run folder (no config.yaml)", str(args.resume))
-    if run.latest_checkpoint() is None:
-        return _restart(run, args)
-    _refuse_if_alive(run)
-    _check_test_trials(run, args.test_trials)
-    cfg = run.config()  # validates the stored config as a user error, not a traceback
-    checkpoint = _resume_checkpoint(run, cfg, rename=not args.dry_run)
-    new = _extended_config(run, args.overrides, checkpoint) if args.overrides else cfg
-    new = _with_trials(new, args.trials)
-    if args.dry_run:
-        sys.stdout.write(dump(new))
-        print(f"# would resume {run.path} from {checkpoint.name}")
-        return 0
-    from detach.runs.provenance import code_change_since
-
-    warning = code_change_since(run)
-    if warning:
-        print(warning, flush=True)
-    return _take_up(run, args, cfg, new, f"resuming {run.path} from {checkpoint.name}", checkpoint)
-
-
-def _take_up(run: RunFolder, args: argparse.Namespace, cfg: RunConfig, new: RunConfig, said: str,
-             checkpoint: Path | None) -> int:
-    """Write the run's config if `--resume` changed it, then train on from `checkpoint` (None:
-    from iteration 0) and evaluate, as the run's own job."""
-    if new != cfg:
-        from detach.runfolder.atomic import atomic_write_text
-
-        atomic_write_text(run.config_path, dump(new))
-    from detach.runs.job import run_job
-    from detach.runs.session import train_and_evaluate
-
-    eval_on = [task_path(extra, "--eval-on") for extra in args.eval_on]
-    print(said, flush=True)
-    return run_job(run, lambda r: train_and_evaluate(
-        r, resume=checkpoint is not None, eval_tasks=eval_on, trials=None, evaluate=not args.no_eval,
-        device=args.device, checkpoint=checkpoint, test_offset=args.test_trials))
-
-
-def _check_test_trials(run: RunFolder, test_offset: int | None) -> None:
-    """Refuse --test-trials for a run that is no sweep cell before anything trains."""
-    from detach.eval.trial_sets import TrialSetError
-    from detach.runs.session import trial_set_of
-
-    try:
-        trial_set_of(run, test_offset)
-    except TrialSetError as exc:
-        raise ConfigError(str(exc)) from None
-
-
-def _restart(run: RunFolder, args: argparse.Namespace) -> int:
-    """A run killed before its first checkpoint: nothing to resume from, so it trains again
-    from iteration 0 with its recorded config (a new log.mcap replaces the old one)."""
-    from detach.config import load_run_config
-
-    try:
-        run.status()
-    except (OSError, ValueError) as exc:
-        raise ConfigError(f"run has no checkpoint, and its status.json is unreadable ({exc}); "
-                          f"expected a run folder that was started", str(run.path)) from None
-    _refuse_if_alive(run)
-    _check_test_trials(run, args.test_trials)
-    cfg = run.config()
-    for text in args.overrides:
-        key = text.split("=", 1)[0]
-        if not key.startswith(RESUME_OVERRIDABLE):
-            raise ConfigError(f"cannot change '{key}' when resuming; only "
-                              f"{', '.join(k + '*' if k.endswith('.') else k for k in RESUME_OVERRIDABLE)} may change")
-    new = _with_trials(load_run_config(run.config_path, args.overrides) if args.overrides else cfg, args.trials)
-    if args.dry_run:
-        sys.stdout.write(dump(new))
-        print(f"# would restart {run.path} from iteration 0 (it has no checkpoint yet)")
-        return 0
-    return _take_up(run, args, cfg, new, f"{run.path} has no checkpoint yet: restarting it from iteration 0 "
-                                         f"with its recorded config", None)
-
-
-def _resume_checkpoint(run: RunFolder, cfg: RunConfig, rename: bool = True) -> Path:
-    """The newest checkpoint that reads back whole and is of the run's model. Newer files that
-    do not read back (truncated, corrupt) are renamed *.corrupt: the resumed run writes
-    those iterations again, and no reader should pick the broken file meanwhile."""
-    from detach.train.checkpoints import check_model, newest_readable_checkpoint, read_checkpoint
-
-    checkpoint = newest_readable_checkpoint(run.path)
-    if checkpoint is None:
-        raise ConfigError("no checkpoint of the run reads back whole (all truncated or corrupt)",
-                          str(run.checkpoints))
-    check_model(read_checkpoint(checkpoint), checkpoint, cfg.model_name, cfg.model.kind)
-    for newer in run.checkpoint_files():
-        if newer == checkpoint or not rename:
-            break
-        newer.rename(newer.with_name(newer.name + ".corrupt"))
-        print(f"renamed the unreadable {newer.name} to {newer.name}.corrupt")
-    return checkpoint
-
-
-def _refuse_if_alive(run: RunFolder) -> None:
-    """Two processes training one run folder would corrupt it. A pid of this host is looked
-    up; one of another host (shared storage) is trusted while its heartbeat is fresh."""
-    from detach.runfolder.liveness import STALE_AFTER_S, this_host
-
-    if not run.owner_alive():
-        return
-    status = run.status()
-    if status.host and status.host != this_host():
-        raise ConfigError(f"run is still {status.state} on host {status.host} (pid {status.pid}, status "
-                          f"updated {time.time() - (status.updated or 0):.0f} s ago); stop it there, or "
-                          f"resume once its status is {STALE_AFTER_S:.0f} s old", str(run.path))
-    raise ConfigError(f"run is still {status.state} (pid {status.pid}); stop it first "
-                      f"(kill -TERM {status.pid}) and resume when it is interrupted", str(run.path))
-
-
-# What a resume may change: how long and how often to save, how to evaluate, and how many
-# CPU threads torch uses (speed, not numbers: a run may go on where there are more cores).
-RESUME_OVERRIDABLE = ("train.max_iterations", "train.save_interval", "train.keep_checkpoints",
-                      "train.torch_threads", "train.stages.", "eval.")
-
-
-def _extended_config(run: RunFolder, overrides: Sequence[str], checkpoint: Path) -> RunConfig:
-    """The run's config with overrides that cannot invalidate the checkpoints (train longer).
-
-    The past never changes: a longer run extends its last stage (DETACH's schedule is
-    written out in train.stages, so it is no longer rescaled), and a schedule stated with
-    train.stages.* must give every completed iteration the stage it was trained in."""
-    import dataclasses
-
-    from detach.config import load_run_config
-    from detach.runfolder.names import checkpoint_iteration
-    from detach.train.schedule import resumed_stages
-
-    for text in overrides:
-        key = text.split("=", 1)[0]
-        if not key.startswith(RESUME_OVERRIDABLE):
-            raise ConfigError(f"cannot change '{key}' when resuming; only "
-                              f"{', '.join(k + '*' if k.endswith('.') else k for k in RESUME_OVERRIDABLE)} may change")
-    old, new = run.config(), load_run_config(run.config_path, overrides)
-    completed = checkpoint_iteration(checkpoint.name)
-    if new.train.max_iterations <= completed:
-        raise ConfigError(f"train.max_iterations: expected more than the {completed + 1} iterations the "
-                          f"run has completed, found {new.train.max_iterations}")
-    stated = any(text.split("=", 1)[0].startswith("train.stages.") for text in overrides)
-    stages = resumed_stages(old, new, completed, stated)
-    if stages is not None:
-        new = dataclasses.replace(new, train=dataclasses.replace(new.train, stages=stages))
-    return new
-
-
-def _evaluate(args: argparse.Namespace) -> int:
-    eval_task = task_path(args.eval_task, "--task") if args.eval_task is not None else None
-    if Path(args.eval).name.endswith(EXPORT_FORMATS["policy"]):
-        return _evaluate_policy_file(args, eval_task)
-    if args.policy_seed is not None:
-        raise ConfigError("--seed: with an exported policy only (a run is evaluated on its own seed's trials)")
-    run, checkpoint = _run_and_checkpoint(args.eval)
-    if args.video is not None:
-        _choose_gl()  # before anything imports mujoco
-    from detach.runs.session import evaluate_run, smaller_evaluation
-
-    _check_test_trials(run, args.test_trials)
-    smaller = None if args.replace else smaller_evaluation(run, eval_task, args.trials, args.test_trials)
-    if smaller is not None:
-        raise ConfigError(smaller)
-    if checkpoint is not None:
-        from detach.train.checkpoints import check_model, read_checkpoint
-
-        cfg = run.config()
-        check_model(read_checkpoint(checkpoint), checkpoint, cfg.model_name, cfg.model.kind)
-    live = run.owner_alive()
-    if live:
-        print("the run is still training: its log.mcap is left alone (no episode recorded)")
-    path = evaluate_run(run, eval_task, checkpoint, args.trials, device=args.device, record=not live,
-                        test_offset=args.test_trials)
-    print(f"evaluation written to {path}")
-    if args.video is not None:
-        from detach.runs.play import play_video
-
-        play_video(run, checkpoint, eval_task, args.video, device=args.device, episodes=1)
-    return 0
-
-
-def _evaluate_policy_file(args: argparse.Namespace, eval_task: Path | None) -> int:
-    from detach.eval.trial_sets import TrialSetError
-    from detach.runs.session import evaluate_policy_file
-    from detach.train.checkpoints import CheckpointError
-
-    policy = Path(args.eval)
-    if not policy.is_file():
-        raise ConfigError("exported policy not found", str(policy))
-    if args.video is not None:
-        raise ConfigError("--video: with a run folder only")
-    try:
-        path = evaluate_policy_file(policy, eval_task, args.policy_seed, args.trials, device=args.device,
-                                    test_offset=args.test_trials)
-    except (TrialSetError, CheckpointError) as exc:
-        raise ConfigError(str(exc)) from None
-    print(f"evaluation written to {path}")
-    return 0
-
-
-def _choose_gl() -> None:
-    from detach.runs.video import VideoError, choose_gl
-
-    try:
-        choose_gl()
-    except VideoError as exc:
-        raise ConfigError(f"--video: {exc}") from None
+HANDLERS: dict[str, Callable[[argparse.Namespace], int]] = {
+    "train": _train, "eval": _evaluate, "resume": _resume, "sweep": _sweep, "play": _play,
+    "export": _export, "list": _list, "table": _table, "keys": _keys}
 
 
 if __name__ == "__main__":

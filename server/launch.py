@@ -125,8 +125,8 @@ def parse_overrides(text: Any) -> tuple[str, ...]:
 def launch_command(task_file: Path, model: str, seed: int, runs_dir: Path,
                    overrides: Sequence[str] = ()) -> list[str]:
     """argv of the run (no shell)."""
-    return [sys.executable, "-m", "detach.cli", str(task_file), "--model", model,
-            "--seed", str(int(seed)), "--out", str(runs_dir), *overrides]
+    return [sys.executable, "-m", "detach.cli", "train", str(task_file), "--model", model,
+            "--seed", str(int(seed)), "--runs", str(runs_dir), *overrides]
 
 
 @dataclass

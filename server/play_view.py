@@ -1,5 +1,9 @@
 """`detach-run play RUN_DIR`: a trained policy live in the viser viewer.
 
+`play_live` is the `live` entry point of the group `detach.viewers` (pyproject.toml), through
+which `detach.runs.actions.play` finds it: the runs package sits below the dashboard and never
+imports it.
+
 The scene is drawn once with the dashboard's own drawing code (`server.scene_view.RunScene`,
 the /scene message of the rollout's env); every control step poses the character and the
 dynamic objects and draws the task markers (`detach.eval.task_markers`, as in the video and
@@ -11,8 +15,6 @@ angle the user chose).
 from __future__ import annotations
 
 import time
-from pathlib import Path
-
 import numpy as np
 
 from detach.eval.task_markers import TaskState
@@ -99,17 +101,3 @@ def play_live(rollout: PolicyRollout, host: str = "127.0.0.1", port: int = 8081,
             server.stop()
     return played
 
-
-def play(run, checkpoint: Path | None, task_path: Path | None, device: str = "cpu", video: Path | None = None,
-         episodes: int | None = None, steps: int | None = None, host: str = "127.0.0.1", port: int = 8081,
-         size: tuple[int, int] = (640, 480)) -> int:
-    """`detach-run play`: the live viewer, or with `video` an mp4 and no viewer."""
-    if video is not None:
-        from detach.runs.play import play_video
-
-        play_video(run, checkpoint, task_path, video, device, episodes, steps, size)
-        return 0
-    rollout = PolicyRollout(run, checkpoint, task_path, device)
-    played = play_live(rollout, host, port, episodes, steps)
-    print(f"played {played} steps ({rollout.episode} episodes ended)", flush=True)
-    return 0

@@ -346,3 +346,47 @@ def test_the_dashboard_reads_runs_only_through_the_run_folder_package() -> None:
                     [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
             found += [f"{name} imports {m}" for m in mods if m.split(".")[0] in ("mcap", "zstandard", "lz4")]
     assert not found, "the dashboard reads runs around detach.runfolder:\n" + "\n".join(found)
+
+
+# ------------------------------------------------------------------ the API under the command line
+CLI_MAX_LINES = 550
+"""detach/cli.py is argparse definitions plus one call per command (835 lines with run logic)."""
+
+CLI_MAY_IMPORT = {"detach.config", "detach.eval.trial_sets", "detach.runs.actions", "detach.runs.command",
+                  "detach.runs.listing", "detach.runs.tables_cli", "detach.config_keys"}
+"""ConfigError and a flag's bound; the API; how a command ends; the read-only reports (list,
+table, keys). Anything else (run folders, sessions, jobs, training, sweeps) is run logic, which
+belongs to the API (`detach.runs.actions`), where a sweep's worker calls it too."""
+
+
+def test_no_module_of_detach_imports_the_dashboard() -> None:
+    """`detach-run play` finds the live viewer through the `detach.viewers` entry point."""
+    found = [f"{module} imports {dep}" for module, deps in sorted(graph().items()) if module.startswith("detach")
+             for dep in sorted(deps) if dep == "server" or dep.startswith("server.")]
+    assert not found, "\n".join(found)
+
+
+def test_the_command_line_only_parses_and_calls_the_api() -> None:
+    path = ROOT / "detach" / "cli.py"
+    lines = len(path.read_text(encoding="utf-8").splitlines())
+    assert lines <= CLI_MAX_LINES, f"detach/cli.py has {lines} lines (at most {CLI_MAX_LINES}): move logic to the API"
+    extra = imports("detach.cli", path, modules()) - CLI_MAY_IMPORT
+    assert not extra, f"detach/cli.py imports {sorted(extra)}: call detach.runs.actions instead"
+
+
+def test_a_sweep_launches_cells_only_through_the_worker_entry() -> None:
+    """No module of detach builds a `python -m detach.cli` command line; the sweep's launchers
+    run `detach.runs.worker` on a job file, and the worker calls the API's functions."""
+    old_form = [str(path.relative_to(ROOT)) for name, path in modules().items()
+                if name.startswith("detach.") and name != "detach.cli"
+                and re.search(r"""["']detach\.cli["']""", path.read_text(encoding="utf-8"))]
+    assert not old_form, f"modules building a detach.cli command line: {old_form}"
+    from detach.runs import actions, job_file, sweep_launchers, worker
+
+    launchers = (ROOT / "detach/runs/sweep_launchers.py").read_text(encoding="utf-8")
+    assert launchers.count("subprocess.Popen(") == 1 and "subprocess.Popen(worker_command(" in launchers
+    assert sweep_launchers.worker_command is job_file.worker_command
+    assert job_file.worker_command(Path("j.json"))[1:] == ["-m", worker.__name__, "j.json"]
+    assert set(worker.ACTIONS) == set(job_file.JOB_ACTIONS)
+    assert all(worker.ACTIONS[name] is getattr(actions, name) for name in job_file.JOB_ACTIONS)
+    assert all(callable(getattr(actions, name)) for name in ("train", "resume", "evaluate", "export", "play"))

@@ -35,6 +35,21 @@ def test_subcommands_parse_like_the_earlier_forms(new: list[str], old: list[str]
         assert a[key] == b[key], key
 
 
+def test_the_earlier_forms_work_for_one_release_with_a_one_line_deprecation(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["follow", "--model", "mlp", "--dry-run", "--runs", "out", "sim.num_envs=4"]) == 0
+    captured = capsys.readouterr()
+    assert "num_envs: 4" in captured.out
+    assert captured.err.splitlines() == ["detach-run: deprecated: `detach-run TASK ...` is now `detach-run train "
+                                         "TASK ...` (the earlier form goes in the next release)"]
+    assert cli.main(["--resume", "missing"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 2 and "`detach-run resume RUN_DIR`" in err[0] and "not a run folder" in err[1], err
+    assert cli.main(["train", "follow", "--model", "mlp", "--dry-run", "--runs", "out"]) == 0
+    assert capsys.readouterr().err == ""
+
+
 def test_runs_folder_is_runs_everywhere() -> None:
     for argv in (["train", "lh1", "--runs", "R"], ["sweep", "s.yaml", "--runs", "R"], ["list", "--runs", "R"],
                  ["list", "--out", "R"], ["lh1", "--runs", "R"], ["table", "s.yaml", "--runs", "R"]):

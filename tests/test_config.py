@@ -224,7 +224,7 @@ def test_broken_config_gives_one_line_error_and_exit_2(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     for fname, text in files.items():
         (tmp_path / fname).write_text(textwrap.dedent(text))
-    code = cli.main([str(tmp_path / "t.yaml"), "--model", "mlp", "--dry-run", *overrides])
+    code = cli.main(["train", str(tmp_path / "t.yaml"), "--model", "mlp", "--dry-run", *overrides])
     err = capsys.readouterr().err
     assert code == 2
     assert "Traceback" not in err

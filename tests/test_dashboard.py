@@ -450,8 +450,8 @@ def test_cli_binds_to_loopback_unless_exposed_and_rejects_bad_options(tmp_path: 
         assert len(err) == 1 and said in err[0], err
     cmd = launch_command(Path("configs/tasks/lh1.yaml"), "detach", 3, tmp_path,
                          ["train.max_iterations=5", "sim.num_envs=8"])
-    assert cmd[1:] == ["-m", "detach.cli", "configs/tasks/lh1.yaml", "--model", "detach",
-                       "--seed", "3", "--out", str(tmp_path), "train.max_iterations=5",
+    assert cmd[1:] == ["-m", "detach.cli", "train", "configs/tasks/lh1.yaml", "--model", "detach",
+                       "--seed", "3", "--runs", str(tmp_path), "train.max_iterations=5",
                        "sim.num_envs=8"]
 
 

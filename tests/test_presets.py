@@ -43,7 +43,7 @@ def test_presets_merge_in_order_and_overrides_win(capsys: pytest.CaptureFixture[
 
 
 def test_an_unknown_preset_or_key_is_a_one_line_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    assert cli.main([FOLLOW, "--model", "mlp", "--preset", "papr", "--dry-run"]) == 2
+    assert cli.main(["train", FOLLOW, "--model", "mlp", "--preset", "papr", "--dry-run"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "papr" in err[0]
     bad = tmp_path / "bad.yaml"

@@ -91,11 +91,11 @@ def test_a_checkpoint_that_would_run_code_is_refused(run: RunFolder, tmp_path: P
     state["infos"]["payload"] = CodeOnLoad(marker)
     torch.save(state, run.latest_checkpoint())
     capsys.readouterr()
-    assert cli.main(["--eval", str(run.path), "--trials", "1"]) == 2
+    assert cli.main(["eval", str(run.path), "--trials", "1"]) == 2
     assert "refused" in _one_error_line(capsys) and not marker.exists()
-    assert cli.main(["--eval", str(run.latest_checkpoint()), "--trials", "1"]) == 2
+    assert cli.main(["eval", str(run.latest_checkpoint()), "--trials", "1"]) == 2
     assert "refused" in _one_error_line(capsys) and not marker.exists()
-    assert cli.main(["--resume", str(run.path), "--no-eval"]) == 2
+    assert cli.main(["resume", str(run.path), "--no-eval"]) == 2
     assert "refused" in _one_error_line(capsys) and not marker.exists()
     assert run.status().state == "finished", "a refused resume leaves the run as it was"
     # as a later stage's start: said as such, with how to get a file that loads (it said
@@ -138,7 +138,7 @@ def test_evaluation_falls_back_past_a_truncated_checkpoint(run: RunFolder,
     assert "skipping" in capsys.readouterr().out
     assert run.eval_result().checkpoint == "checkpoints/model_1.pt"
     run.checkpoint_files()[-1].write_bytes(b"")
-    assert cli.main(["--eval", str(run.path), "--trials", "1"]) == 2
+    assert cli.main(["eval", str(run.path), "--trials", "1"]) == 2
     assert "no readable checkpoint" in _one_error_line(capsys)
 
 
@@ -149,15 +149,15 @@ def test_a_checkpoint_of_another_model_is_one_line(run: RunFolder,
     state["infos"].update(model="tokenhsi", model_kind="tokenhsi")
     torch.save(state, path)
     capsys.readouterr()
-    assert cli.main(["--eval", str(run.path), "--trials", "1"]) == 2
+    assert cli.main(["eval", str(run.path), "--trials", "1"]) == 2
     assert "checkpoint is for model tokenhsi (tokenhsi), the run is mlp (mlp)" in _one_error_line(capsys)
-    assert cli.main(["--resume", str(run.path)]) == 2
+    assert cli.main(["resume", str(run.path)]) == 2
     assert "checkpoint is for model tokenhsi" in _one_error_line(capsys)
     # a file that does not say its model: the weights themselves do not fit
     state["infos"] = {}
     state["actor_state_dict"] = {"encoder.weight": torch.zeros(3, 3)}
     torch.save(state, path)
-    assert cli.main(["--eval", str(path), "--trials", "1"]) == 2
+    assert cli.main(["eval", str(path), "--trials", "1"]) == 2
     line = _one_error_line(capsys)
     assert "weights do not fit this run's model" in line and "unexpected (e.g. encoder.weight)" in line
 
@@ -173,7 +173,7 @@ def test_a_full_disk_fails_the_run_in_one_line_and_leaves_no_partial_file(
         return real_save(obj, f, *args, **kwargs)
 
     monkeypatch.setattr(checkpoint_io.torch, "save", save_until_the_disk_is_full)
-    code = cli.main([*RUN_ARGS, "--out", str(tmp_path)])
+    code = cli.main(["train", *RUN_ARGS, "--out", str(tmp_path)])
     err = capsys.readouterr().err
     (run,) = find_runs(tmp_path)
     assert code == 1 and "Traceback" not in err

@@ -82,7 +82,7 @@ def test_a_file_linked_out_of_the_run_folder_is_never_shown(tmp_path: Path,
     assert "TOPSECRET" not in out
     (note,) = [line for line in out.splitlines() if line.startswith(f"  {run.path.name}:")]
     assert "config.yaml" in note and "leaves the run folder" in note
-    assert cli.main(["--resume", str(run.path)]) == 2
+    assert cli.main(["resume", str(run.path)]) == 2
     err = capsys.readouterr().err
     assert "TOPSECRET" not in err and len(err.strip().splitlines()) == 1
 

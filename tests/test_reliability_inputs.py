@@ -26,7 +26,6 @@ def _one_line(capsys: pytest.CaptureFixture[str]) -> str:
     (["--trials", "many"], "--trials: expected an integer, found 'many'"),
     (["--seed", "-1"], "--seed: expected an integer in [0, 4294967295], found -1"),
     (["--seed", str(2**32)], "--seed: expected an integer in [0, 4294967295], found 4294967296"),
-    (["--jobs", "0"], "--jobs: expected an integer >= 1, found 0"),
     (["--no-such-flag"], "unrecognized arguments: --no-such-flag"),
     (["train.max_iterations=0"], "train.max_iterations: expected a value >= 1, found 0"),
     (["sim.num_envs=0"], "sim.num_envs: expected a value in [1, 1048576], found 0"),
@@ -47,14 +46,16 @@ def _one_line(capsys: pytest.CaptureFixture[str]) -> str:
 def test_bad_numbers_are_one_line_and_create_nothing(extra: list[str], message: str, tmp_path: Path,
                                                     capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "runs"
-    assert cli.main([FOLLOW, "--model", "mlp", "--out", str(out), *TINY, *extra]) == 2
+    assert cli.main(["train", FOLLOW, "--model", "mlp", "--out", str(out), *TINY, *extra]) == 2
     assert message in _one_line(capsys)
     assert not out.exists(), "nothing half-written"
 
 
 def test_eval_and_resume_check_their_numbers_too(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    assert cli.main(["--eval", str(tmp_path), "--trials", "0"]) == 2
+    assert cli.main(["eval", str(tmp_path), "--trials", "0"]) == 2
     assert "--trials: expected an integer >= 1, found 0" in _one_line(capsys)
+    assert cli.main(["sweep", str(tmp_path / "s.yaml"), "--jobs", "0"]) == 2
+    assert "--jobs: expected an integer >= 1, found 0" in _one_line(capsys)
     assert cli.main(["list", str(tmp_path), "--bogus"]) == 2
     assert "unrecognized arguments: --bogus" in _one_line(capsys)
 
@@ -63,13 +64,13 @@ def test_an_out_folder_that_cannot_be_written_is_one_line(tmp_path: Path,
                                                           capsys: pytest.CaptureFixture[str]) -> None:
     blocker = tmp_path / "a-file"
     blocker.write_text("not a folder")
-    assert cli.main([FOLLOW, "--model", "mlp", "--out", str(blocker / "runs"), *TINY]) == 2
+    assert cli.main(["train", FOLLOW, "--model", "mlp", "--out", str(blocker / "runs"), *TINY]) == 2
     line = _one_line(capsys)
     assert f"cannot create a run folder under --runs {blocker / 'runs'}" in line
-    assert cli.main([FOLLOW, "--model", "mlp", "--out", str(blocker), *TINY]) == 2  # --out is a file
+    assert cli.main(["train", FOLLOW, "--model", "mlp", "--out", str(blocker), *TINY]) == 2  # --out is a file
     assert f"cannot create a run folder under --runs {blocker} ({blocker} is a file)" in _one_line(capsys)
     assert blocker.read_text() == "not a folder"
-    assert cli.main([FOLLOW, "--model", "mlp", "--out", "/proc/detach-runs", *TINY]) == 2
+    assert cli.main(["train", FOLLOW, "--model", "mlp", "--out", "/proc/detach-runs", *TINY]) == 2
     assert "cannot create a run folder under --runs /proc/detach-runs" in _one_line(capsys)
 
 
@@ -81,7 +82,7 @@ def test_a_run_folder_is_all_or_nothing(tmp_path: Path, monkeypatch: pytest.Monk
         raise PermissionError(13, "Permission denied")
 
     monkeypatch.setattr(atomic, "atomic_writer", read_only)
-    assert cli.main([FOLLOW, "--model", "mlp", "--out", str(tmp_path), *TINY]) == 2
+    assert cli.main(["train", FOLLOW, "--model", "mlp", "--out", str(tmp_path), *TINY]) == 2
     assert "Permission denied" in _one_line(capsys)
     assert list(tmp_path.iterdir()) == [], "the half-made run folder is removed"
 
@@ -104,7 +105,7 @@ def test_a_yaml_alias_bomb_is_refused_at_once(tmp_path: Path, capsys: pytest.Cap
     bomb.write_text(ALIAS_BOMB)
     assert len(ALIAS_BOMB) < 2048
     start = time.process_time()  # CPU time: a busy shared machine must not fail the test, a hang must
-    assert cli.main([str(bomb), "--model", "mlp", "--out", str(tmp_path / "runs")]) == 2
+    assert cli.main(["train", str(bomb), "--model", "mlp", "--out", str(tmp_path / "runs")]) == 2
     assert time.process_time() - start < 10
     line = _one_line(capsys)
     assert str(bomb) in line and "possible alias bomb" in line

@@ -55,7 +55,7 @@ def test_training_longer_extends_the_last_stage(detach_run: RunFolder, monkeypat
 
 def test_a_stated_schedule_may_not_change_completed_iterations(detach_run: RunFolder,
                                                                capsys: pytest.CaptureFixture[str]) -> None:
-    argv = ["--resume", str(detach_run.path), "train.max_iterations=40", "--dry-run"]
+    argv = ["resume", str(detach_run.path), "train.max_iterations=40", "--dry-run"]
     assert cli.main([*argv, "train.stages.pretrain=2", "train.stages.fusion=20", "train.stages.joint=18"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "puts iteration 10 in 'fusion', but the run trained it in 'joint'" in err[0]

@@ -134,13 +134,13 @@ def test_a_pid_of_another_host_is_judged_by_its_heartbeat(tmp_path: Path,
     status.update(state="running", pid=dead_here, host="elsewhere.example", updated=time.time())
     run.status_path.write_text(json.dumps(status))
     capsys.readouterr()
-    assert cli.main(["--resume", str(run.path), "--dry-run"]) == 2
+    assert cli.main(["resume", str(run.path), "--dry-run"]) == 2
     err = capsys.readouterr().err
     assert "still running on host elsewhere.example" in err and len(err.strip().splitlines()) == 1
     status.update(updated=time.time() - 3600)  # its heartbeat stopped an hour ago
     run.status_path.write_text(json.dumps(status))
     assert not owner_alive(run.status())
-    assert cli.main(["--resume", str(run.path), "--dry-run"]) == 0
+    assert cli.main(["resume", str(run.path), "--dry-run"]) == 0
     # and a live pid of this machine under another host's name is not taken for that run
     status.update(pid=os.getppid(), updated=time.time() - 3600)
     run.status_path.write_text(json.dumps(status))

@@ -18,7 +18,9 @@ import pytest
 
 from detach.config import resolve
 from detach.runfolder.folder import RunFolder, find_runs
-from detach.runs.sweep import cells, load_sweep, run_sweep
+from detach.runs.sweep import run_sweep
+from detach.runs.sweep_config import load_sweep
+from detach.runs.sweep_graph import cells
 from tests.test_runner_cli import FOLLOW
 from tests.test_sweep_protocol import ROOT, TINY
 

@@ -105,7 +105,7 @@ def test_a_broken_status_json_is_one_line_naming_the_file_and_hides_no_other_run
     assert rows[good.path.name][-1] == "0.25" and rows[bad.path.name][4] == "unreadable"
     (note,) = [line for line in out.splitlines() if line.startswith(f"  {bad.path.name}:")]
     assert "status.json" in note and ("expected" in note or "must be" in note), note
-    assert cli.main(["--resume", str(bad.path)]) == 2  # no checkpoint: one line, nothing written
+    assert cli.main(["resume", str(bad.path)]) == 2  # no checkpoint: one line, nothing written
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
     assert bad.status_path.read_bytes() == BAD_STATUS[name]
 
@@ -119,7 +119,7 @@ def test_a_run_folder_without_config_yaml_is_listed_and_refused_in_one_line(
     out = capsys.readouterr().out
     assert f"  {bad.path.name}: ConfigError: {bad.config_path}: file not found" in out
     assert any(line.split()[0] == good.path.name and line.split()[-1] == "0.25" for line in out.splitlines())
-    for argv in (["--resume", str(bad.path)], ["--eval", str(bad.path)]):
+    for argv in (["resume", str(bad.path)], ["eval", str(bad.path)]):
         assert cli.main(argv) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert err == [f"detach-run: error: {bad.path}: not a run folder (no config.yaml)"]
@@ -177,7 +177,8 @@ def test_a_sweep_table_reads_only_the_evaluations_the_sweep_asks_of_each_cell(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """A phase-A cell evaluated by hand on LH1 (a diagnosis: the Follow policy tried on LH1)
     must not pool into the LH1 column of the sweep's table, which is the LH1 cell's."""
-    from detach.runs.sweep import cells, load_sweep
+    from detach.runs.sweep_config import load_sweep
+    from detach.runs.sweep_graph import cells
     from tests.test_sweep_protocol import write_sweep
 
     sweep = write_sweep(tmp_path)

@@ -170,8 +170,8 @@ def test_list_shows_runs_and_unreadable_folders(tmp_path: Path,
 
 
 @pytest.mark.parametrize("argv,message", [
-    (["--resume", "/nonexistent/run"], "not a run folder"),
-    (["--eval", "/nonexistent/run"], "run folder or checkpoint not found"),
+    (["resume", "/nonexistent/run"], "not a run folder"),
+    (["eval", "/nonexistent/run"], "run folder or checkpoint not found"),
     (["table", "/nonexistent/sweep.yaml"], "sweep file or runs folder not found"),
     ([], "missing TASK"),
 ])

@@ -14,7 +14,10 @@ import pytest
 from detach import cli
 from detach.runfolder.folder import find_runs
 from detach.config import ConfigError
-from detach.runs.sweep import cell_work, cells, load_sweep, run_sweep, stderr_tail
+from detach.runs.sweep import run_sweep
+from detach.runs.sweep_config import load_sweep
+from detach.runs.sweep_graph import cell_work, cells
+from detach.runs.sweep_launchers import stderr_tail
 from detach.runs.sweep_eta import SweepClock
 
 ROOT = Path(__file__).resolve().parents[1]

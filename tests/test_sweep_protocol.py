@@ -19,7 +19,9 @@ from detach import cli
 from detach.config import resolve
 from detach.runs.curves import run_curve
 from detach.runfolder.folder import find_runs
-from detach.runs.sweep import _lock_path, cells, file_lock, load_sweep
+from detach.runs.sweep import _lock_path, file_lock
+from detach.runs.sweep_config import load_sweep
+from detach.runs.sweep_graph import cells
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ["env.character=puppet", "sim.num_envs=4", "train.num_steps_per_env=8", "eval.num_envs=2",
@@ -56,7 +58,7 @@ def test_a_sweep_runs_its_stages_in_order_each_starting_from_the_last(tmp_path: 
                                                                       capsys: pytest.CaptureFixture[str]) -> None:
     sweep = write_sweep(tmp_path)
     out = tmp_path / "runs"
-    assert cli.main(["--sweep", str(sweep), "--preset", "tiny", "--out", str(out)]) == 0
+    assert cli.main(["sweep", str(sweep), "--preset", "tiny", "--out", str(out)]) == 0
     runs = {r.status().cell.split("/")[0]: r for r in find_runs(out)}
     assert sorted(runs) == ["carry", "follow", "lh1"] and all(r.status().state == "finished" for r in runs.values())
     carry, lh1 = runs["carry"].config(), runs["lh1"].config()
@@ -71,7 +73,7 @@ def test_a_sweep_runs_its_stages_in_order_each_starting_from_the_last(tmp_path: 
     assert "[3/3]" in printed and "done" in printed
     # a second run of the sweep has nothing to do; a table of it has both LH columns
     stamps = {r.path: r.status_path.stat().st_mtime for r in find_runs(out)}
-    assert cli.main(["--sweep", str(sweep), "--preset", "tiny", "--out", str(out)]) == 0
+    assert cli.main(["sweep", str(sweep), "--preset", "tiny", "--out", str(out)]) == 0
     assert {r.path: r.status_path.stat().st_mtime for r in find_runs(out)} == stamps
     assert cli.main(["table", str(sweep), "--runs", str(out)]) == 2, "the default cells were never run"
     assert "no evaluation on the test trials found" in capsys.readouterr().err
@@ -91,7 +93,7 @@ def test_a_sweep_runs_its_stages_in_order_each_starting_from_the_last(tmp_path: 
     lh1 = runs["lh1"]
     (lh1.path / "eval_lh2.test.json").unlink()
     trained = lh1.stdout_path.read_text().count("stage: ")
-    assert cli.main(["--sweep", str(sweep), "--preset", "tiny", "--out", str(out)]) == 0
+    assert cli.main(["sweep", str(sweep), "--preset", "tiny", "--out", str(out)]) == 0
     assert (lh1.path / "eval_lh2.test.json").exists()
     assert lh1.stdout_path.read_text().count("stage: ") == trained, "not trained again"
 
@@ -101,7 +103,7 @@ def test_a_sweep_on_a_local_ray(tmp_path: Path) -> None:
     pytest.importorskip("ray")
     sweep = write_sweep(tmp_path, models="[mlp, cml]")
     out = tmp_path / "runs"
-    assert cli.main(["--sweep", str(sweep), "--preset", "tiny", "--jobs", "2", "--launcher", "ray",
+    assert cli.main(["sweep", str(sweep), "--preset", "tiny", "--jobs", "2", "--launcher", "ray",
                      "--out", str(out)]) == 0
     runs = find_runs(out)
     assert len(runs) == 6 and all(r.status().state == "finished" for r in runs)
@@ -212,7 +214,7 @@ def test_a_second_process_on_the_same_sweep_is_refused(tmp_path: Path, capsys: p
         """)], stdout=subprocess.PIPE, text=True)
     try:
         assert holder.stdout.readline().strip() == "True"
-        assert cli.main(["--sweep", str(sweep), "--preset", "tiny", "--out", str(out)]) == 2
+        assert cli.main(["sweep", str(sweep), "--preset", "tiny", "--out", str(out)]) == 2
         assert "is already running in another process" in capsys.readouterr().err
     finally:
         holder.kill()
@@ -233,16 +235,16 @@ def test_bad_sweeps_are_one_line_errors(tmp_path: Path, capsys: pytest.CaptureFi
     sweep = write_sweep(tmp_path, extra="")
     text = sweep.read_text().replace("init_from: carry", "init_from: sit")
     sweep.write_text(text)
-    assert cli.main(["--sweep", str(sweep), "--out", str(tmp_path / "runs")]) == 2
+    assert cli.main(["sweep", str(sweep), "--out", str(tmp_path / "runs")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "init_from: expected an earlier stage (follow, carry), found 'sit'" in err[0]
     sweep = write_sweep(tmp_path)
-    assert cli.main(["--sweep", str(sweep), "--preset", "laptopp", "--out", str(tmp_path / "runs")]) == 2
+    assert cli.main(["sweep", str(sweep), "--preset", "laptopp", "--out", str(tmp_path / "runs")]) == 2
     assert "has no preset 'laptopp'" in capsys.readouterr().err
-    assert cli.main(["--sweep", str(sweep), "--models", "mlp,detach", "--out", str(tmp_path / "runs")]) == 2
+    assert cli.main(["sweep", str(sweep), "--models", "mlp,detach", "--out", str(tmp_path / "runs")]) == 2
     assert "--models: 'detach' is not a model of sweep 'mini' (mlp)" in capsys.readouterr().err
     sweep = write_sweep(tmp_path, extra="  loop: {extends: loop}\n")
-    assert cli.main(["--sweep", str(sweep), "--preset", "loop", "--out", str(tmp_path / "runs")]) == 2
+    assert cli.main(["sweep", str(sweep), "--preset", "loop", "--out", str(tmp_path / "runs")]) == 2
     err = capsys.readouterr().err
     assert "mini.yaml" in err
     assert ("presets.loop.extends: expected another preset of this sweep (laptop, laptop_paper, laptop_composition, "
@@ -258,7 +260,7 @@ def test_a_preset_names_each_skills_teacher_by_stage(tmp_path: Path, capsys: pyt
     assert ones["lh1"].teachers == (("follow", ones["follow"].key), ("carry", ones["carry"].key), ("sit", "oracle"))
     assert ones["carry"].key == plain["carry"].key and ones["lh1"].key != plain["lh1"].key  # phase A shared
     out = tmp_path / "runs"
-    assert cli.main(["--sweep", str(sweep), "--preset", "taught", "--out", str(out)]) == 0
+    assert cli.main(["sweep", str(sweep), "--preset", "taught", "--out", str(out)]) == 0
     runs = {r.status().cell.split("/")[0]: r for r in find_runs(out)}
     teachers = runs["lh1"].config().train.teachers  # pinned to each teacher run's policy file
     assert teachers == {"follow": str(runs["follow"].path.resolve() / "checkpoints" / "model_1.pt"),
@@ -268,7 +270,7 @@ def test_a_preset_names_each_skills_teacher_by_stage(tmp_path: Path, capsys: pyt
                       ("{lh1: {sitt: oracle}}", "presets.bad.stage_teachers.lh1.sitt: unknown skill 'sitt'"),
                       ("{lhx: {sit: oracle}}", "presets.bad.stage_teachers.lhx: unknown stage")]:
         sweep = write_sweep(tmp_path, extra=f"  bad: {{extends: tiny, stage_teachers: {bad}}}\n")
-        assert cli.main(["--sweep", str(sweep), "--preset", "bad", "--out", str(out)]) == 2
+        assert cli.main(["sweep", str(sweep), "--preset", "bad", "--out", str(out)]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and said in err[0], err
 
@@ -282,7 +284,7 @@ def test_a_preset_adds_a_stage_that_takes_over_the_evaluations_of_the_one_it_con
     sweep = write_sweep(tmp_path, extra=more)
     assert [s.name for s in load_sweep(sweep, preset="tiny").stages] == ["follow", "carry", "lh1"]
     out = tmp_path / "runs"
-    assert cli.main(["--sweep", str(sweep), "--preset", "more", "--out", str(out)]) == 0
+    assert cli.main(["sweep", str(sweep), "--preset", "more", "--out", str(out)]) == 0
     runs = {r.status().cell.split("/")[0]: r for r in find_runs(out)}
     lh1, more = runs["lh1"], runs["lh1_more"]
     assert sorted(p.name for p in more.path.glob("eval*.json")) == ["eval.test.json", "eval_lh2.test.json"]
@@ -304,7 +306,7 @@ def test_a_preset_adds_a_stage_that_takes_over_the_evaluations_of_the_one_it_con
                        "presets.bad.stages[0].init_from: expected the stage this one continues (follow, carry, lh1), "
                        "found 'sit'")]:
         sweep = write_sweep(tmp_path, extra=f"  bad: {{extends: tiny, stages: {bad}}}\n")
-        assert cli.main(["--sweep", str(sweep), "--preset", "bad", "--out", str(out)]) == 2
+        assert cli.main(["sweep", str(sweep), "--preset", "bad", "--out", str(out)]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and said in err[0], err
 

@@ -16,8 +16,8 @@ from detach import cli
 from detach.config import resolve
 from detach.eval.aids import run_aids
 from detach.eval.trial_sets import MIN_TEST_SEED_OFFSET, TrialSetError, trial_seed
-from detach.runfolder.names import eval_file, trial_set_of_file
 from detach.runfolder.folder import find_runs
+from detach.runfolder.names import eval_file, trial_set_of_file
 from detach.runs.validation import validation_seed
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -43,9 +43,10 @@ def test_the_three_sets_never_share_a_seed_across_the_run_seeds_in_use() -> None
 
 def test_nothing_outside_the_sweep_passes_the_test_offset() -> None:
     """Probes, diagnoses, choices and examples evaluate on development or validation trials
-    only: the flag and the call that play the test trials appear in the sweep's command, the
-    CLI that parses it and the session that runs it, nowhere else."""
-    allowed = {"detach/runs/sweep.py", "detach/cli.py", "detach/runs/session.py", "detach/eval/trial_sets.py",
+    only: the flag and the call that play the test trials appear in the sweep's job, the
+    CLI that parses it, the API and the session that run it, nowhere else."""
+    allowed = {"detach/runs/sweep_jobs.py", "detach/cli.py", "detach/runs/actions.py", "detach/runs/resume_policy.py",
+               "detach/runs/session.py", "detach/eval/trial_sets.py",
                "detach/runfolder/names.py", "detach/runs/tables_cli.py", "detach/runs/ship.py"}
     pattern = re.compile(r"--test-trials|test_offset\s*=|trial_seed\([^)]*[\"']test[\"']")
     offenders = []
@@ -194,7 +195,8 @@ def test_the_dashboard_counts_a_run_evaluated_on_both_sets_once() -> None:
 
 
 def test_table_one_measures_zero_shot_climb_and_sit_where_every_trial_starts_at_them() -> None:
-    from detach.runs.sweep import cells, load_sweep
+    from detach.runs.sweep_config import load_sweep
+    from detach.runs.sweep_graph import cells
 
     sweep = ROOT / "configs/sweeps/table1.yaml"
     for preset in ("laptop", "laptop_paper"):

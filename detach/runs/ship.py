@@ -22,7 +22,8 @@ from detach.runfolder.atomic import atomic_write_json, atomic_write_text
 from detach.runfolder.folder import RunFolder, read_eval
 from detach.runs.provenance import last_git
 from detach.runs.session import eval_config, eval_path, evaluate_policy_file
-from detach.runs.sweep import cells, existing_runs, load_sweep
+from detach.runs.sweep_config import load_sweep
+from detach.runs.sweep_graph import cells, existing_runs
 
 MANIFEST = "manifest.json"
 

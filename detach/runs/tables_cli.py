@@ -139,7 +139,8 @@ def print_table(source: Path, runs_dir: Path, kind: str | None, out: Path | None
         out = out or source / "tables"
         curves = None
     else:
-        from detach.runs.sweep import cell_evaluations, existing_runs, load_sweep
+        from detach.runs.sweep_config import load_sweep
+        from detach.runs.sweep_graph import cell_evaluations, existing_runs
 
         sweep = load_sweep(source, preset=preset, seeds=seeds)
         offset = sweep.test_seed_offset
@@ -203,7 +204,7 @@ model and seed were played in the same runs folder: its recipe may have been pic
 def _chain_aids(source: Path, sweep, runs: Mapping[str, RunFolder], test: bool) -> AidsOf:
     """A sweep cell's aids: its own and those of the cells it started from (the policy
     inherits them), plus `AFTER_TEST` (test tables) where `_after_test` says so."""
-    from detach.runs.sweep import cells as sweep_cells
+    from detach.runs.sweep_graph import cells as sweep_cells
 
     parents = {c.key: c.parent for c in sweep_cells(sweep, source)}
 
