@@ -34,12 +34,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from detach.character.body import BODY_NAMES  # noqa: E402
-from detach.runfolder.log_tail import LogTail  # noqa: E402
-from detach.runfolder.mcap_reader import read_episodes, read_metrics  # noqa: E402
-from detach.runfolder.messages import EpisodeFrame  # noqa: E402
-from detach.runfolder.names import STATUS_FILE  # noqa: E402
-from detach.runs.mcap_log import RunLogWriter  # noqa: E402
+from detach import (  # noqa: E402
+    BODY_NAMES, EpisodeFrame, LogTail, RunLogWriter, STATUS_FILE, read_episodes, read_metrics,
+)
 from server.episode import load_episode  # noqa: E402
 from server.run_index import RunIndex  # noqa: E402
 from tests.dashboard_fixtures import HeadlessClient, make_run, start_dashboard  # noqa: E402
@@ -156,7 +153,7 @@ def measure(runs: Path, live: Path) -> dict[str, float]:
 
 def big_log_rows(tmp: Path, megabytes: float) -> list[tuple[str, str]]:
     """The incremental reader on one live log of `megabytes` MB vs the reference reader."""
-    from detach.character import build_character_model
+    from detach import build_character_model
     from tests.dashboard_fixtures import walk_frames
 
     run = make_run(tmp / "big", "detach", seed=0, shift=0.0, now=1_700_000_000,

@@ -35,8 +35,7 @@ def bench(task: str, n: int, steps: int, nthread: int, reps: int, compiled: bool
     """Alternate `reps` timed chunks of raw, env and compiled-env stepping (steps / reps control
     steps each) and keep each one's fastest chunk: on a shared machine the minimum is the least
     disturbed."""
-    from detach.config import resolve
-    from detach.envs.lh_env import make_env
+    from detach import make_env, resolve
     from scene_builder.assets import ensure_assets
 
     overrides = ["env.character=humanoid", f"sim.nthread={nthread}"]

@@ -33,13 +33,10 @@ def main() -> None:
     parser.add_argument("--num-envs", type=int, nargs="+", default=[16, 50, 100])
     args = parser.parse_args()
 
-    from detach.envs.lh_env import make_env
-    from detach.eval.episodes import run_evaluation
-    from detach.runfolder.folder import RunFolder
-    from detach.runs.policy import load_policy
-    from detach.runs.session import eval_config
-    from detach.train.checkpoints import newest_readable_checkpoint
-    from detach.train.setup import apply_torch_threads, prepare_assets, seed_everything
+    from detach import (
+        RunFolder, apply_torch_threads, eval_config, load_policy, make_env, newest_readable_checkpoint, prepare_assets,
+        run_evaluation, seed_everything,
+    )
 
     run = RunFolder(args.run)
     base = eval_config(run.config(), args.task)
@@ -75,12 +72,7 @@ def record(run, cfg, checkpoint: Path, trials: int) -> tuple[float, float, float
     """(seconds to reopen a copy of the run's log for appending, the same copy made by decoding
     and re-encoding every message, seconds of the rollout that records every trial into the
     log), as `detach-run eval` does on the run's own task."""
-    from detach.envs.lh_env import make_env
-    from detach.eval.episodes import run_evaluation
-    from detach.runfolder.mcap_reader import iter_messages
-    from detach.runs.mcap_log import RunLogWriter
-    from detach.runs.policy import load_policy
-    from detach.train.setup import seed_everything
+    from detach import RunLogWriter, iter_messages, load_policy, make_env, run_evaluation, seed_everything
 
     with tempfile.TemporaryDirectory() as tmp:
         log_path = Path(tmp) / "log.mcap"

@@ -26,8 +26,7 @@ from typing import Callable, Iterator
 
 import torch
 
-from detach.config import resolve
-from detach.train.setup import build_runner
+from detach import build_runner, resolve
 
 ROOT = Path(__file__).resolve().parents[1]
 PARTS = ("env", "policy", "amp reward", "rollout other", "rollout",

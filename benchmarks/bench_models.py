@@ -22,13 +22,7 @@ import time
 import torch
 from tensordict import TensorDict
 
-from detach.config_schema import ModelCfg
-from detach.models.cml import CMLCfg
-from detach.models.detach_net import DetachCfg
-from detach.models.mlp import MLPCfg
-from detach.models.tokenhsi import TokenHSICfg
-from detach.envs.obs_spec import EXAMPLE_SPEC
-from detach.models import build_actor_critic
+from detach import CMLCfg, DetachCfg, EXAMPLE_SPEC, MLPCfg, ModelCfg, TokenHSICfg, build_actor_critic
 
 CONFIGS: dict[str, ModelCfg] = {
     "mlp": MLPCfg(),

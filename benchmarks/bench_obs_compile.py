@@ -23,9 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def frames_inputs(n: int) -> tuple:
     """The inputs of both frames from a humanoid LH3 env after 20 standing steps."""
-    from detach.config import resolve
-    from detach.envs import observations as O
-    from detach.envs.lh_env import make_env
+    from detach import make_env, observations as O, resolve
     from scene_builder.assets import ensure_assets
 
     cfg = resolve(str(ROOT / "configs/tasks/lh3.yaml"), "mlp", ["env.character=humanoid"])
@@ -47,7 +45,7 @@ def frames_inputs(n: int) -> tuple:
 
 def both_frames(root_pos, R, body_pos, body_quat, body_lin, body_ang, dof_pos, dof_vel, goal, ahead,
                 follows, has_obj, obj_pos, obj_quat, obj_half, hmap):
-    from detach.envs import observations as O
+    from detach import observations as O
 
     return (O.self_frame(body_pos, body_quat, body_lin, body_ang, dof_pos, dof_vel, R),
             O.env_frame(root_pos, R, goal, ahead, follows, has_obj, obj_pos, obj_quat, obj_half, hmap))

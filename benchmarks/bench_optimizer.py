@@ -14,9 +14,7 @@ from pathlib import Path
 
 import torch
 
-from detach.config import resolve
-from detach.envs.lh_env import make_env
-from detach.models.factory import build_actor_critic
+from detach import build_actor_critic, make_env, resolve
 from scene_builder.assets import ensure_assets
 
 

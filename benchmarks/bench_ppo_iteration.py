@@ -23,9 +23,7 @@ from pathlib import Path
 
 import torch
 
-from detach.config import resolve
-from detach.models.encoders import EnvEncoder
-from detach.train.setup import build_runner
+from detach import EnvEncoder, build_runner, resolve
 
 ROOT = Path(__file__).resolve().parents[1]
 

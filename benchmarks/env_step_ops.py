@@ -38,8 +38,7 @@ def main() -> None:
     ap.add_argument("--compile", action="store_true", help="the env with sim.compile=true")
     args = ap.parse_args()
     torch.set_num_threads(1)
-    from detach.config import resolve
-    from detach.envs.lh_env import make_env
+    from detach import make_env, resolve
     from scene_builder.assets import ensure_assets
 
     cfg = resolve(args.task, "mlp", ["env.character=humanoid", "sim.nthread=2", f"sim.compile={args.compile}"])

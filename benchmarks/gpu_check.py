@@ -50,8 +50,7 @@ CUDA_GRAPH = {"on": True}
 
 
 def _cfg(task: str, model: str, overrides: list[str]):
-    from detach.config import resolve
-    from detach.train.checks import complete_run_config
+    from detach import complete_run_config, resolve
 
     graph = f"sim.cuda_graph={'true' if CUDA_GRAPH['on'] else 'false'}"
     return complete_run_config(resolve(TASKS / f"{task}.yaml", model, ["sim.backend=warp", graph, *overrides]))
@@ -59,8 +58,7 @@ def _cfg(task: str, model: str, overrides: list[str]):
 
 def raw_physics(ns: list[int], device: torch.device, seconds: float) -> list[dict]:
     """Control steps/s of the LH3 humanoid scene: warp on `device` vs mujoco.batch (all cores)."""
-    from detach.character import make_character
-    from detach.sim import make_backend
+    from detach import make_backend, make_character
     from scene_builder.assets import ensure_assets
     from scene_builder.scene import compile_scene
 
@@ -114,7 +112,7 @@ def _rate(step, n: int, device: torch.device, seconds: float) -> float:
 
 
 def env_rate(n: int, device: torch.device, seconds: float) -> dict:
-    from detach.envs.lh_env import make_env
+    from detach import make_env
 
     env = make_env(_cfg("lh3", "mlp", ["env.character=humanoid"]), num_envs=n, device=device, verbose=False)
     gen = torch.Generator(device=device).manual_seed(0)
@@ -128,7 +126,7 @@ def env_rate(n: int, device: torch.device, seconds: float) -> dict:
 
 
 def ppo_iteration(model: str, n: int, steps: int, device: torch.device, iterations: int = 2) -> dict:
-    from detach.train.setup import build_runner
+    from detach import build_runner
 
     cfg = _cfg("lh1", model, ["env.character=humanoid", f"sim.num_envs={n}", f"train.num_steps_per_env={steps}",
                               f"train.max_iterations={iterations + 1}"])
@@ -153,7 +151,7 @@ def _metric(metrics: dict, *names: str) -> float | None:
 
 
 def learning_curve(n: int, steps: int, device: torch.device, seconds: float) -> dict:
-    from detach.train.setup import build_runner
+    from detach import build_runner
 
     cfg = _cfg("follow", "mlp", ["env.character=puppet", f"sim.num_envs={n}", f"train.num_steps_per_env={steps}",
                                  "train.max_iterations=100000"])
@@ -244,7 +242,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--models", nargs="*", default=["mlp", "detach"])
     ap.add_argument("--seconds", type=float, default=10.0, help="timing per raw / env measurement")
     args = ap.parse_args(argv)
-    from detach.sim.warp_backend import warp_available
+    from detach import warp_available
 
     why = warp_available()
     if why is not None:

@@ -14,7 +14,7 @@ import argparse
 import statistics
 from pathlib import Path
 
-from detach.runfolder.mcap_reader import read_metrics
+from detach import read_metrics
 
 
 def main() -> None:

@@ -20,8 +20,7 @@ from pathlib import Path
 
 import torch
 
-from detach.runfolder.folder import RunFolder
-from detach.train.setup import build_runner
+from detach import RunFolder, build_runner
 
 
 def rollout(env, policy, scorer, steps: int) -> dict[str, float]:

@@ -7,8 +7,7 @@ overrides, into one frozen `RunConfig` of typed sections. Tasks and models are f
     python examples/01_resolve_config.py
 """
 
-from detach.config import dump, find_task_file, resolve
-from detach.config_keys import format_keys, select
+from detach import dump, find_task_file, format_keys, resolve, select
 
 
 def main() -> None:

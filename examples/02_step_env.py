@@ -10,9 +10,7 @@ import argparse
 
 import torch
 
-from detach.config import find_task_file, resolve
-from detach.envs.lh_env import make_env
-from detach.train.checks import complete_run_config
+from detach import complete_run_config, find_task_file, make_env, resolve
 
 
 def main(steps: int = 30) -> None:

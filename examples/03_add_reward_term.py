@@ -9,11 +9,7 @@ its target and distance) with a default weight; the config sets any weight as
 
 import torch
 
-from detach.config import find_task_file, resolve
-from detach.envs.lh_env import make_env
-from detach.skills import RewardTerm, skill_class
-from detach.skills.context import SkillContext
-from detach.train.checks import complete_run_config
+from detach import RewardTerm, SkillContext, complete_run_config, find_task_file, make_env, resolve, skill_class
 
 
 def upright(ctx: SkillContext) -> torch.Tensor:

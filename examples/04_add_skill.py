@@ -14,14 +14,10 @@ from pathlib import Path
 
 import torch
 
-from detach.character.body import BODY_NAMES
-from detach.config import builtin_configs, resolve
-from detach.envs.lh_env import make_env
-from detach.envs.oracle import Oracle
-from detach.eval.episodes import run_evaluation
-from detach.skills import RewardTerm, Skill, register_skill, unregister_skill
-from detach.skills.context import OracleCommand, SkillContext
-from detach.train.checks import complete_run_config
+from detach import (
+    BODY_NAMES, Oracle, OracleCommand, RewardTerm, Skill, SkillContext, builtin_configs, complete_run_config, make_env,
+    register_skill, resolve, run_evaluation, unregister_skill,
+)
 
 RIGHT_HAND = BODY_NAMES.index("right_hand")
 

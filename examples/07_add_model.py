@@ -5,7 +5,7 @@ registered with `register_model` together with its table label), and a model YAM
 `examples/linear.yaml`, whose `kind: linear_model:LinearCfg` imports that module wherever the
 run is loaded (the module must be importable: here examples/ is on the path; an installed
 add-on names it in the `detach.model_kinds` entry points instead). Here it trains on the follow
-task with the puppet and is evaluated by the command line.
+task with the puppet and is evaluated, through the functions under the command line.
 
     python examples/07_add_model.py [--runs /tmp/detach-example-runs] [--iterations 2]
 """
@@ -13,20 +13,18 @@ task with the puppet and is evaluated by the command line.
 import argparse
 from pathlib import Path
 
-from detach import cli
-from detach.eval.tables import skills_table
-from detach.runfolder.folder import find_runs
+from detach import RunFolder, evaluate, skills_table, train_run
 
 HERE = Path(__file__).resolve().parent
 
 
 def main(runs: Path, iterations: int) -> None:
-    code = cli.main(["train", "follow", "--model", str(HERE / "linear.yaml"), "--runs", str(runs), "--no-eval",
-                     "env.character=puppet", "sim.num_envs=4", "train.num_steps_per_env=8", "eval.num_envs=2",
-                     "env.episode_length=60", f"train.max_iterations={iterations}"])
-    assert code == 0, code
-    run = find_runs(runs)[-1]
-    assert cli.main(["eval", str(run.path), "--trials", "2"]) == 0
+    outcome = train_run("follow", str(HERE / "linear.yaml"), runs=runs, evaluate=False,
+                        overrides=["env.character=puppet", "sim.num_envs=4", "train.num_steps_per_env=8",
+                                   "eval.num_envs=2", "env.episode_length=60", f"train.max_iterations={iterations}"])
+    assert outcome.code == 0, outcome
+    run = RunFolder(outcome.run)
+    evaluate(run.path, trials=2)
     row = skills_table([run.eval_result()], task="follow").rows[0]
     print(f"{run.path}: model {row[0]!r}, follow success {row[1].value:.2f}")
 

@@ -10,9 +10,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn as nn
 
-from detach.config_schema import ModelCfg
-from detach.models import StructuredModel, register_model
-from detach.models.layout import HISTORY_GROUPS, ObsLayout
+from detach import HISTORY_GROUPS, ModelCfg, ObsLayout, StructuredModel, register_model
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from detach.eval.task_markers import PathMemo, TaskState, task_state
+from detach import PathMemo, TaskState, task_state
 from detach.runfolder.log_tail import EpisodeKey, LogTail
 from detach.runfolder.messages import EpisodeFrame
 

@@ -12,7 +12,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from detach.eval.task_markers import Disc, Marker, Polyline, Sphere, Text
+from detach import Disc, Marker, Polyline, Sphere, Text
 from server.scene_geometry import node_name
 
 

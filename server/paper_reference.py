@@ -13,7 +13,7 @@ EGR 0.81, SGR 0.13).
 
 from __future__ import annotations
 
-from detach.models import paper_label
+from detach import paper_label
 
 SKILLS: dict[str, dict[str, float]] = {
     # Table I (LH1): Follow, Carry, Climb, Sit, LH1

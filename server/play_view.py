@@ -17,8 +17,7 @@ from __future__ import annotations
 import time
 import numpy as np
 
-from detach.eval.task_markers import TaskState
-from detach.runs.play import VERDICT_HOLD_S, PolicyRollout
+from detach import PolicyRollout, TaskState, VERDICT_HOLD_S
 from server.episode import Episode
 from server.markup import md_text
 from server.scene_view import RunScene

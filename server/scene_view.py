@@ -14,7 +14,7 @@ from typing import Any, Callable, ContextManager, Sequence
 
 import numpy as np
 
-from detach.eval.task_markers import Marker, Text, scene_targets, task_markers
+from detach import Marker, Text, scene_targets, task_markers
 from detach.runfolder.messages import SceneTarget
 from server.episode import Episode
 from server.marker_view import MarkerView

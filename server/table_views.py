@@ -13,7 +13,7 @@ import html
 from dataclasses import dataclass, field
 from typing import Sequence
 
-from detach.eval.tables import TABLES, Cell, Table
+from detach import Cell, TABLES, Table
 from detach.runfolder.eval_result import EvalResult
 from server.paper_reference import SWAP_NOTE, reference_rows
 

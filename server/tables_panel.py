@@ -9,7 +9,7 @@ from typing import Any
 
 import viser
 
-from detach.eval.tables import TABLES
+from detach import TABLES
 from detach.runfolder.names import EVAL_GLOB
 from server.session import Panel, Session, chosen, is_quiet
 from server.table_views import build_tables, table_csv, table_html

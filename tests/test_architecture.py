@@ -1,8 +1,8 @@
 """The layer order of docs/ARCHITECTURE.md, enforced on every import in the code.
 
 Data flows one way: config -> runfolder -> assets -> character -> scene/sim/motion -> skills -> envs ->
-models -> train -> eval -> runs -> cli/server. A module may import its own layer or a lower
-one, never a higher one, and no set of modules may import each other in a cycle. Every import
+models -> train -> eval -> runs -> cli/server/public face (`detach/__init__.py`). A module may
+import its own layer or a lower one, never a higher one, and no set of modules may import each other in a cycle. Every import
 counts, also those inside functions and under TYPE_CHECKING. `from a.b import c` depends on
 module a.b (the package a.b's __init__ when a.b is a package).
 """
@@ -17,7 +17,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("detach", "scene_builder", "server")
 
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("config", ("detach", "detach.yaml_source", "detach.config_validate", "detach.config_schema",
+    ("config", ("detach.yaml_source", "detach.config_validate", "detach.config_schema", "detach.config_keys",
                 "detach.config", "detach.torch_math", "detach.host_sync")),
     ("runfolder", ("detach.runfolder",)),
     ("assets", ("scene_builder",)),
@@ -29,7 +29,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("train", ("detach.train",)),
     ("eval", ("detach.eval",)),
     ("runs", ("detach.runs",)),
-    ("cli", ("detach.cli", "scene_builder.cli", "detach.motion.cli", "server")),
+    ("cli", ("detach.cli", "scene_builder.cli", "detach.motion.cli", "server", "detach")),
 )
 """Layer name and the module prefixes in it; the longest matching prefix decides."""
 
@@ -322,15 +322,13 @@ def test_no_regular_expression_reads_config_yaml() -> None:
     assert not readers, f"modules that read config.yaml and import re: {readers}"
 
 
-SERVER_DETACH_IMPORTS = ("detach.eval.task_markers", "detach.eval.tables", "detach.runs.play", "detach.models")
-"""What the dashboard may import from detach besides the run-folder package: task markers and
-table layouts (pure functions of messages), the policy player (the play panel's action) and the
-model registry (the paper rows' labels)."""
+PUBLIC_FACE = "detach"
+"""`detach/__init__.py`: what code outside the package imports (besides the run-folder package)."""
 
 
 def test_the_dashboard_reads_runs_only_through_the_run_folder_package() -> None:
     """server/ reads run folders, logs included, only through `detach.runfolder`: no module of
-    its own decodes MCAP, and it imports nothing else of detach that reads run files."""
+    its own decodes MCAP, and everything else of detach it takes from the public face."""
     known = modules()
     found = []
     for name, path in sorted(known.items()):
@@ -338,14 +336,76 @@ def test_the_dashboard_reads_runs_only_through_the_run_folder_package() -> None:
             continue
         for dep in sorted(imports(name, path, known)):
             if dep.startswith("detach") and not (dep.startswith(RUN_FOLDER_PACKAGE + ".") or dep == RUN_FOLDER_PACKAGE
-                                                 or dep in SERVER_DETACH_IMPORTS):
+                                                 or dep == PUBLIC_FACE):
                 found.append(f"{name} imports {dep}")
         tree = ast.parse(path.read_text(encoding="utf-8"))
         for node in ast.walk(tree):
             mods = ([a.name for a in node.names] if isinstance(node, ast.Import) else
                     [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
             found += [f"{name} imports {m}" for m in mods if m.split(".")[0] in ("mcap", "zstandard", "lz4")]
-    assert not found, "the dashboard reads runs around detach.runfolder:\n" + "\n".join(found)
+    assert not found, "the dashboard reads runs around detach.runfolder or the public face:\n" + "\n".join(found)
+
+
+# ------------------------------------------------------------------------------ the public face
+SCRIPT_FOLDERS = ("examples", "benchmarks", "results", "docs")
+"""Code that uses detach from outside: it imports the public face only."""
+
+
+def test_scripts_import_detach_only_through_its_public_face() -> None:
+    """Examples, benchmarks, diagnosis scripts and the docs' scripts import `from detach import
+    NAME` with NAME public (or `detach.runfolder`), never a module path inside the package, so
+    that the package can be reorganised without breaking them."""
+    import detach
+
+    found = []
+    for folder in SCRIPT_FOLDERS:
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            tree = ast.parse(path.read_text(encoding="utf-8"))
+            where = path.relative_to(ROOT)
+            for node in ast.walk(tree):
+                if isinstance(node, ast.Import):
+                    found += [f"{where}:{node.lineno} import {a.name}" for a in node.names
+                              if a.name.startswith("detach.") and not a.name.startswith(RUN_FOLDER_PACKAGE)]
+                elif isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] == "detach":
+                    if node.module == PUBLIC_FACE:
+                        found += [f"{where}:{node.lineno} {a.name} is not public" for a in node.names
+                                  if a.name not in detach.__all__]
+                    elif not node.module.startswith(RUN_FOLDER_PACKAGE):
+                        found.append(f"{where}:{node.lineno} from {node.module}")
+    assert not found, "imports past detach's public face:\n" + "\n".join(found)
+
+
+def test_the_public_face_loads_nothing_until_used_and_every_name_resolves() -> None:
+    """`import detach` (which every `import detach.x` runs first) loads neither torch nor MuJoCo,
+    each public name resolves to its module's object, and what type checkers see (the
+    TYPE_CHECKING imports) names exactly the public names, from the same modules."""
+    import subprocess
+    import sys
+
+    probe = "import sys, detach; print(sorted({'torch', 'mujoco'} & set(sys.modules)))"
+    loaded = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
+    assert loaded.stdout.strip() == "[]", loaded.stdout
+    import importlib
+
+    import detach
+
+    for module, names in detach.PUBLIC.items():
+        for name in names:
+            owner = importlib.import_module(module)
+            attribute = detach.RENAMED.get(name, name)
+            expected = getattr(owner, attribute, None) or importlib.import_module(f"{module}.{attribute}")
+            assert getattr(detach, name) is expected, name
+    tree = ast.parse((ROOT / "detach" / "__init__.py").read_text(encoding="utf-8"))
+    typed = {}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and isinstance(node.test, ast.Name) and node.test.id == "TYPE_CHECKING":
+            for imp in node.body:
+                assert isinstance(imp, ast.ImportFrom), ast.dump(imp)
+                for a in imp.names:
+                    typed[a.asname or a.name] = (imp.module, a.name)
+    public = {name: (module, detach.RENAMED.get(name, name)) for module, names in detach.PUBLIC.items()
+              for name in names}
+    assert typed == public
 
 
 # ------------------------------------------------------------------ the API under the command line

@@ -23,7 +23,6 @@ from typing import Any
 
 import torch
 
-import detach
 from detach.runfolder.atomic import atomic_write_json
 from detach.runfolder.folder import RunFolder, read_json
 
@@ -45,7 +44,7 @@ def _git(args: list[str], cwd: Path) -> str | None:
 def git_state(source: Path | None = None) -> dict[str, Any] | None:
     """Commit, branch, dirty flag, diff and untracked files of the work tree holding `source`
     (default: detach's own source); None outside a git work tree."""
-    source = source or Path(detach.__file__).resolve().parent
+    source = source or Path(__file__).resolve().parents[1]  # the detach package's folder
     top = _git(["rev-parse", "--show-toplevel"], source)
     if top is None:
         return None

@@ -18,7 +18,7 @@ from pathlib import Path
 import torch
 from eval_rollout import eval_env_and_policy, quartiles
 
-from detach.torch_math import yaw_of
+from detach import yaw_of
 
 ENVS, STEPS = 48, 400
 

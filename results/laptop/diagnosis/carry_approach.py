@@ -14,8 +14,7 @@ from pathlib import Path
 import torch
 from eval_rollout import eval_env_and_policy, quartiles
 
-from detach.skills.carry import HAND_IDS
-from detach.torch_math import point_box_distance, wrap_angle, yaw_of
+from detach import HAND_IDS, point_box_distance, wrap_angle, yaw_of
 
 ENVS, STEPS, NEAR_BOX = 48, 300, 0.6
 

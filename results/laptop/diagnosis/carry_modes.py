@@ -16,14 +16,10 @@ from pathlib import Path
 
 import torch
 
-from detach.envs.lh_env import make_env
-from detach.eval.episodes import run_evaluation
-from detach.runfolder.folder import RunFolder
-from detach.runs.policy import load_policy
-from detach.runs.session import eval_config
-from detach.skills.carry import HAND_IDS, box_lifted
-from detach.torch_math import point_box_distance
-from detach.train.setup import seed_everything
+from detach import (
+    HAND_IDS, RunFolder, box_lifted, eval_config, load_policy, make_env, point_box_distance, run_evaluation,
+    seed_everything,
+)
 
 run = RunFolder(Path(sys.argv[1]))
 trials = int(sys.argv[2])

@@ -9,8 +9,7 @@ import sys
 import torch
 from pathlib import Path
 from eval_rollout import eval_env_and_policy
-from detach.skills.carry import HAND_IDS, box_lifted
-from detach.torch_math import point_box_distance
+from detach import HAND_IDS, box_lifted, point_box_distance
 
 for name in sys.argv[2:]:
     _run, _cfg, env, actor = eval_env_and_policy(sys.argv[1], name, 16)

@@ -8,7 +8,7 @@ import json
 import sys
 from pathlib import Path
 
-from detach.runfolder.mcap_reader import read_metrics
+from detach import read_metrics
 
 print("| run | cell | iterations | training min | s per iteration | whole run min |")
 print("| --- | --- | --- | --- | --- | --- |")

@@ -16,13 +16,10 @@ from pathlib import Path
 
 import torch
 
-from detach.envs.lh_env import make_env
-from detach.eval.episodes import run_evaluation
-from detach.runfolder.names import checkpoint_iteration
-from detach.runfolder.folder import RunFolder
-from detach.runs.policy import load_policy
-from detach.runs.validation import validation_env, validation_score
-from detach.train.setup import apply_torch_threads, seed_everything
+from detach import (
+    RunFolder, apply_torch_threads, checkpoint_iteration, load_policy, make_env, run_evaluation, seed_everything,
+    validation_env, validation_score,
+)
 
 
 def main(run_dirs: list[str]) -> None:

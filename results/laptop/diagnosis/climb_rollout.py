@@ -14,11 +14,7 @@ from pathlib import Path
 
 import torch
 
-from detach.character.body import BODY_NAMES, FEET, FOOT_TO_SOLE
-from detach.envs.lh_env import make_env
-from detach.runfolder.folder import RunFolder
-from detach.runs.policy import load_policy
-from detach.train.setup import seed_everything
+from detach import BODY_NAMES, FEET, FOOT_TO_SOLE, RunFolder, load_policy, make_env, seed_everything
 
 NUM_ENVS = 32
 FEET_IDS = [BODY_NAMES.index(b) for b in FEET]

@@ -5,11 +5,7 @@ from pathlib import Path
 
 import torch
 
-from detach.envs.lh_env import make_env
-from detach.runfolder.folder import RunFolder
-from detach.runs.policy import load_policy
-from detach.runs.session import eval_config
-from detach.train.setup import seed_everything
+from detach import RunFolder, eval_config, load_policy, make_env, seed_everything
 
 
 def eval_env_and_policy(run_dir: str, checkpoint: str, envs: int):

@@ -10,10 +10,7 @@ from pathlib import Path
 
 import torch
 
-from detach.character.puppet import GRASP_ACTION
-from detach.envs.lh_env import make_env
-from detach.runfolder.folder import RunFolder
-from detach.runs.policy import load_policy
+from detach import GRASP_ACTION, RunFolder, load_policy, make_env
 
 
 def main() -> None:

@@ -12,7 +12,7 @@ import sys
 from rsl_rl.algorithms.ppo import PPO
 from rsl_rl.models.mlp_model import MLPModel
 
-import detach.cli
+from detach import cli_main
 
 _current: dict = {}
 _kl = MLPModel.get_kl_divergence
@@ -36,4 +36,4 @@ def _recording_update(self):
 
 MLPModel.get_kl_divergence = _recording_kl
 PPO.update = _recording_update
-sys.exit(detach.cli.main(sys.argv[1:]))
+sys.exit(cli_main(sys.argv[1:]))

@@ -10,12 +10,7 @@ from pathlib import Path
 
 import torch
 
-from detach.envs.lh_env import make_env
-from detach.runfolder.folder import RunFolder
-from detach.runs.policy import load_policy
-from detach.runs.session import eval_config
-from detach.skills.trajectories import distance_to_polyline
-from detach.train.setup import seed_everything
+from detach import RunFolder, distance_to_polyline, eval_config, load_policy, make_env, seed_everything
 
 NUM_ENVS = 8
 

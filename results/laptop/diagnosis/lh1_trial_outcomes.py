@@ -15,12 +15,7 @@ from pathlib import Path
 
 import torch
 
-from detach.envs.lh_env import make_env
-from detach.runfolder.folder import RunFolder
-from detach.runs.policy import load_policy
-from detach.runs.session import eval_config
-from detach.torch_math import yaw_of
-from detach.train.setup import seed_everything
+from detach import RunFolder, eval_config, load_policy, make_env, seed_everything, yaw_of
 
 run = RunFolder(Path(sys.argv[1]))
 cfg = eval_config(run.config(), Path("configs/tasks/lh1.yaml"))

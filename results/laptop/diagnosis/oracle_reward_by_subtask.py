@@ -9,9 +9,7 @@ import sys
 
 import torch
 
-from detach.config import resolve
-from detach.envs.lh_env import make_env
-from detach.envs.oracle import Oracle
+from detach import Oracle, make_env, resolve
 
 torch.set_num_threads(1)
 cfg = resolve("configs/tasks/lh1.yaml", "mlp", ["env.character=puppet", "rewards.power_coeff=0", *sys.argv[1:]],

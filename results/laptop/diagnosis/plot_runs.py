@@ -20,7 +20,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from detach.runfolder.mcap_reader import read_metrics  # noqa: E402
+from detach import read_metrics  # noqa: E402
 
 
 def series(rows: list[dict], metric: str) -> list[tuple[int, float]]:

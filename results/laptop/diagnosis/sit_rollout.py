@@ -15,10 +15,7 @@ from pathlib import Path
 
 import torch
 
-from detach.envs.lh_env import make_env
-from detach.runfolder.folder import RunFolder
-from detach.runs.policy import load_policy
-from detach.train.setup import seed_everything
+from detach import RunFolder, load_policy, make_env, seed_everything
 
 NUM_ENVS, STEPS, HOLD = 32, 450, 20
 

@@ -15,11 +15,7 @@ from pathlib import Path
 
 import torch
 
-from detach.eval.episodes import run_evaluation
-from detach.runfolder.folder import RunFolder
-from detach.runs.policy import load_policy
-from detach.runs.validation import validation_env, validation_seed
-from detach.train.setup import apply_torch_threads
+from detach import RunFolder, apply_torch_threads, load_policy, run_evaluation, validation_env, validation_seed
 
 TRIALS = 50
 

@@ -13,12 +13,10 @@ from pathlib import Path
 
 import torch
 
-from detach.config import resolve
-from detach.eval.episodes import run_evaluation
-from detach.runs.validation import validation_env, validation_seed
-from detach.skills import skill_names
-from detach.train.checks import complete_run_config
-from detach.train.setup import apply_action_means, build_runner, load_initial_weights, seed_everything
+from detach import (
+    apply_action_means, build_runner, complete_run_config, load_initial_weights, resolve, run_evaluation,
+    seed_everything, skill_names, validation_env, validation_seed,
+)
 
 ROOT = Path(__file__).resolve().parents[3]
 STAGE = ["env.character=puppet", "env.episode_length=600", "env.mid_task_init_prob=0.5", "sim.num_envs=4",

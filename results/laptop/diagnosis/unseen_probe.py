@@ -13,11 +13,7 @@ from pathlib import Path
 
 import torch
 
-from detach.envs.lh_env import make_env
-from detach.runfolder.folder import RunFolder
-from detach.runs.policy import load_policy
-from detach.runs.session import eval_config
-from detach.train.setup import merge_normalizers, seed_everything
+from detach import RunFolder, eval_config, load_policy, make_env, merge_normalizers, seed_everything
 
 
 def rollout(actor, env, label: str) -> None:
