@@ -2,9 +2,9 @@
 
 Data flows one way: config -> runfolder -> assets -> character -> scene/sim/motion -> skills -> envs ->
 models -> train -> eval -> runs -> cli/server/public face (`detach/__init__.py`). A module may
-import its own layer or a lower one, never a higher one, and no set of modules may import each other in a cycle. Every import
-counts, also those inside functions and under TYPE_CHECKING. `from a.b import c` depends on
-module a.b (the package a.b's __init__ when a.b is a package).
+import its own layer or a lower one, never a higher one, and no set of modules may import each
+other in a cycle. Every import counts, also those inside functions and under TYPE_CHECKING.
+`from a.b import c` depends on module a.b (the package a.b's __init__ when a.b is a package).
 """
 
 from __future__ import annotations
