@@ -70,7 +70,7 @@ PUBLIC: dict[str, tuple[str, ...]] = {
     "detach.runs.validation": ("validation_env", "validation_seed", "validation_score"),
     "detach.eval.tables": ("TABLES", "Cell", "Table", "skills_table"),
     "detach.eval.task_markers": ("Disc", "Marker", "PathMemo", "Polyline", "Sphere", "TaskState", "Text",
-                                 "scene_targets", "task_markers", "task_state"),
+                                 "task_markers", "task_state"),
     "detach.runs.play": ("VERDICT_HOLD_S", "PolicyRollout"),
 }
 """Module -> the public names it defines (or, for `observations`, its submodule)."""
@@ -117,7 +117,7 @@ if TYPE_CHECKING:  # what type checkers and editors see; tests/test_architecture
     from detach.eval.episodes import run_evaluation
     from detach.eval.tables import TABLES, Cell, Table, skills_table
     from detach.eval.task_markers import (
-        Disc, Marker, PathMemo, Polyline, Sphere, TaskState, Text, scene_targets, task_markers, task_state,
+        Disc, Marker, PathMemo, Polyline, Sphere, TaskState, Text, task_markers, task_state,
     )
     from detach.models import StructuredModel, build_actor_critic, paper_label, register_model
     from detach.models.cml import CMLCfg

@@ -60,7 +60,7 @@ def play_live(rollout: PolicyRollout, host: str = "127.0.0.1", port: int = 8081,
         server = viser.ViserServer(host=host, port=port, verbose=False)
         print(f"viewer: http://{host}:{server.get_port()} (Ctrl-C stops)", flush=True)
     scene = RunScene(server.scene, server.atomic, "play")
-    for note in scene.show(rollout.scene.to_json(), np.zeros(3)):
+    for note in scene.show(rollout.scene, np.zeros(3)):
         print(f"note: {note}", flush=True)
     status = server.gui.add_markdown("")
     played, shown_episode, last = 0, rollout.episode, None

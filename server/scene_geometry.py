@@ -13,16 +13,15 @@ import re
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 import trimesh
 
+from detach.runfolder.messages import BodyGeom, SceneMessage
 from scene_builder.assets import default_assets_root
 
 
-TARGET_COLOR = (220, 40, 40)
-"""Targets whose /scene message names no colour."""
 BODY_COLOR = (222, 170, 120)
 STATIC_COLORS = ((150, 150, 160), (175, 160, 140), (140, 165, 150), (165, 150, 175),
                  (160, 175, 185))
@@ -62,8 +61,7 @@ class Instances:
     """[K, 3]."""
 
 
-def humanoid_instances(body_geoms: Sequence[dict[str, Any]], bodies: Sequence[str]
-                       ) -> dict[str, Instances]:
+def humanoid_instances(body_geoms: Sequence[BodyGeom], bodies: Sequence[str]) -> dict[str, Instances]:
     """Split `body_geoms` (the /scene format) into sphere / cylinder / box instances.
 
     Without geoms (an older log), every body becomes a 7 cm sphere at its origin.
@@ -72,10 +70,9 @@ def humanoid_instances(body_geoms: Sequence[dict[str, Any]], bodies: Sequence[st
         "sphere": [], "cylinder": [], "box": []}
     ident = (1.0, 0.0, 0.0, 0.0)
     for g in body_geoms:
-        size = [float(s) for s in g.get("size", (0.05,))] + [0.0, 0.0]
-        pos = np.asarray(g.get("pos", (0.0, 0.0, 0.0)), dtype=float)
-        quat = np.asarray(g.get("quat", ident), dtype=float)
-        kind, body = g.get("type"), str(g.get("body", ""))
+        size = [*g.size, 0.0, 0.0]
+        pos, quat = np.asarray(g.pos, dtype=float), np.asarray(g.quat, dtype=float)
+        kind, body = g.type, g.body
         if kind == "sphere":
             rows["sphere"].append((body, pos, ident, (size[0],) * 3))
         elif kind == "capsule":
@@ -131,14 +128,6 @@ def find_mesh(path: str | None, root: Path | None = None) -> Path | None:
     return candidate if candidate.is_relative_to(base) and candidate.is_file() else None
 
 
-def target_color(target: dict[str, Any]) -> tuple[int, int, int]:
-    """A /scene target's colour (its skill's, as the run wrote it), else `TARGET_COLOR`."""
-    color = target.get("color")
-    if isinstance(color, (list, tuple)) and len(color) == 3:
-        return tuple(int(c) for c in color)  # type: ignore[return-value]
-    return TARGET_COLOR
-
-
 @lru_cache(maxsize=64)
 def _load_mesh(path: str, mtime_ns: int) -> tuple[np.ndarray, np.ndarray]:
     mesh = trimesh.load(path, force="mesh", process=False)
@@ -155,24 +144,19 @@ def load_mesh(path: Path) -> tuple[np.ndarray, np.ndarray] | None:
     return (v, f) if len(v) and len(f) else None
 
 
-def scene_bounds(scene: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+def scene_bounds(scene: SceneMessage | None) -> tuple[np.ndarray, np.ndarray]:
     """(min xyz, max xyz) of objects, trajectories and targets; a 4 m square if empty."""
     pts = []
-    for o in scene.get("objects", ()):
-        c, half = np.asarray(o.get("pos", (0, 0, 0)), float), np.asarray(
-            o.get("bbox", (0.5, 0.5, 0.5)), float) / 2
+    for o in scene.objects if scene is not None else ():
+        c, half = np.asarray(o.pos, float), np.asarray(o.bbox, float) / 2
         pts += [c - half, c + half]
-    for way in (scene.get("trajectories") or {}).values():
+    for way in scene.trajectories.values() if scene is not None else ():
         pts += [np.array([*w[:2], 0.0], float) for w in way]
-    pts += [np.asarray(t.get("pos", (0, 0, 0)), float) for t in scene.get("targets", ())]
+    pts += [np.asarray(t.pos, float) for t in (scene.targets if scene is not None else ())]
     if not pts:
         return np.array([-2.0, -2.0, 0.0]), np.array([2.0, 2.0, 2.0])
     a = np.array(pts)
     return a.min(axis=0), a.max(axis=0)
-
-
-def as_list(value: Any) -> list:
-    return value if isinstance(value, list) else []
 
 
 def node_name(name: str) -> str:

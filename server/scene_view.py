@@ -14,14 +14,13 @@ from typing import Any, Callable, ContextManager, Sequence
 
 import numpy as np
 
-from detach import Marker, Text, scene_targets, task_markers
-from detach.runfolder.messages import SceneTarget
+from detach import Marker, Text, task_markers
+from detach.runfolder.messages import SceneMessage, SceneObject, SceneTarget
 from server.episode import Episode
 from server.marker_view import MarkerView
 from server.scene_geometry import (
-    DYNAMIC_COLOR, STATIC_COLORS, TRAJECTORY_COLOR, Instances, as_list, find_mesh,
-    humanoid_instances, instance_poses, load_mesh, node_name, scene_bounds, target_color,
-    unit_mesh,
+    DYNAMIC_COLOR, STATIC_COLORS, TRAJECTORY_COLOR, Instances, find_mesh, humanoid_instances, instance_poses,
+    load_mesh, node_name, scene_bounds, unit_mesh,
 )
 
 TRAIL_COLOR = (230, 90, 30)
@@ -66,7 +65,7 @@ class RunScene:
         self.markers = MarkerView(scene_api, f"/{slot}/task")
         self._index_cache: tuple[tuple[str, ...], dict[str, np.ndarray]] | None = None
         self._character_shown = False
-        self.bounds: tuple[np.ndarray, np.ndarray] = scene_bounds({})
+        self.bounds: tuple[np.ndarray, np.ndarray] = scene_bounds(None)
         self.offset = np.zeros(3)
         self.notes: list[str] = []
         self.shown = False
@@ -86,16 +85,14 @@ class RunScene:
         self._targets, self.targets = [], []
         self._character_shown = self.shown = False
 
-    def show(self, scene: dict[str, Any] | None, offset: np.ndarray) -> list[str]:
-        """Draw a /scene message; returns notes for the user (e.g. meshes drawn as boxes).
-
-        A malformed message is drawn as far as it goes and the rest becomes a note: a
-        broken log must not stop the dashboard."""
+    def show(self, scene: SceneMessage | None, offset: np.ndarray, notes: Sequence[str] = ()) -> list[str]:
+        """Draw a /scene message (None: the floor alone); returns notes for the user: `notes`
+        (the parts `SceneMessage.salvage` left out of a malformed message) and what could not
+        be drawn (e.g. meshes drawn as boxes). A broken log must not stop the dashboard."""
         self.clear()
-        self.notes = []
-        scene = scene if isinstance(scene, dict) else {}
+        self.notes = list(notes)
         try:
-            self._show(scene, offset)
+            self._show(scene or SceneMessage("", [], {}, [], [], []), offset)
         except Exception as exc:  # noqa: BLE001
             self.notes.append(f"the /scene message could not be drawn completely ({exc!r:.160})")
         self.shown = True
@@ -106,8 +103,8 @@ class RunScene:
         if self._root is not None:
             self._root.position = tuple(float(v) for v in self.offset)
 
-    def _show(self, scene: dict[str, Any], offset: np.ndarray) -> None:
-        self.bounds = self._guard("bounds", scene_bounds, scene) or scene_bounds({})
+    def _show(self, scene: SceneMessage, offset: np.ndarray) -> None:
+        self.bounds = scene_bounds(scene)
         self.offset = np.asarray(offset, dtype=float)
         lo, hi = self.bounds
         centre, size = (lo + hi) / 2, np.maximum(hi - lo, 1.0)
@@ -120,16 +117,14 @@ class RunScene:
                 height=float(np.ceil(size[1] + 4)),
                 position=(float(centre[0]), float(centre[1]), 0.0), cell_size=0.5,
                 section_size=1.0, plane_color=(235, 235, 235), plane_opacity=0.6))
-            for i, obj in enumerate(as_list(scene.get("objects"))):
+            for i, obj in enumerate(scene.objects):
                 self._guard(f"object {i}", self._add_object, i, obj)
-            trajectories = scene.get("trajectories")
-            for key, way in (trajectories.items() if isinstance(trajectories, dict) else ()):
-                self._guard(f"trajectory {key}", self._add_trajectory, str(key), way)
-            for i, tgt in enumerate(as_list(scene.get("targets"))):
-                self._guard(f"target {i}", self._add_target, i, tgt)
-            self.targets = self._guard("targets", scene_targets, scene) or []
-            if self._guard("body_geoms", self._add_character, scene) is None:
-                self._add_character({"bodies": scene.get("bodies") or []})  # spheres at bodies
+            for key, way in scene.trajectories.items():
+                self._guard(f"trajectory {key}", self._add_trajectory, key, way)
+            for i, tgt in enumerate(scene.targets):
+                self._add_target(i, tgt)
+            self.targets = list(scene.targets)
+            self._add_character(scene)
 
     def _guard(self, what: str, fn, *args):
         """fn(*args), or None plus a note naming the bad part of the message."""
@@ -140,44 +135,39 @@ class RunScene:
             return None
 
     def _add_trajectory(self, key: str, way: Sequence[Sequence[float]]) -> None:
-        pts = np.array([[float(w[0]), float(w[1]), 0.03] for w in way], dtype=np.float32)
+        pts = np.array([[w[0], w[1], 0.03] for w in way], dtype=np.float32)
         if len(pts) >= 2:
             segs = np.stack([pts[:-1], pts[1:]], axis=1)
             self._handles.append(self.scene.add_line_segments(
                 f"/{self.slot}/trajectories/{node_name(key)}", segs, TRAJECTORY_COLOR,
                 thickness=0.04))
 
-    def _add_target(self, i: int, tgt: dict[str, Any]) -> None:
+    def _add_target(self, i: int, tgt: SceneTarget) -> None:
         handle = self.scene.add_icosphere(
-            f"/{self.slot}/targets/{i}", radius=0.1, subdivisions=2, color=target_color(tgt),
-            position=tuple(float(v) for v in tgt.get("pos", (0, 0, 0))))
+            f"/{self.slot}/targets/{i}", radius=0.1, subdivisions=2, color=tuple(tgt.color),
+            position=tuple(tgt.pos))
         self._handles.append(handle)
         self._targets.append(handle)
 
-    def _add_object(self, i: int, obj: dict[str, Any]) -> None:
-        name = str(obj.get("name", f"object_{i}"))
-        node = f"/{self.slot}/objects/{i}_{node_name(name)}"
-        pose = dict(position=tuple(float(v) for v in obj.get("pos", (0, 0, 0))),
-                    wxyz=tuple(float(v) for v in obj.get("quat", (1, 0, 0, 0))))
-        static = bool(obj.get("static", True))
-        color = (STATIC_COLORS[zlib.crc32(str(obj.get("category", "")).encode())
-                               % len(STATIC_COLORS)] if static else DYNAMIC_COLOR)
-        path = find_mesh(obj.get("mesh"))
+    def _add_object(self, i: int, obj: SceneObject) -> None:
+        node = f"/{self.slot}/objects/{i}_{node_name(obj.name)}"
+        pose = dict(position=tuple(obj.pos), wxyz=tuple(obj.quat))
+        color = (STATIC_COLORS[zlib.crc32(obj.category.encode()) % len(STATIC_COLORS)] if obj.static
+                 else DYNAMIC_COLOR)
+        path = find_mesh(obj.mesh)
         mesh = load_mesh(path) if path is not None else None
         if mesh is not None:
             handle = self.scene.add_mesh_simple(node, mesh[0], mesh[1], color=color,
                                                 flat_shading=True, **pose)
         else:
-            bbox = tuple(float(v) for v in obj.get("bbox", (0.3, 0.3, 0.3)))
-            handle = self.scene.add_box(node, color=color, dimensions=bbox, opacity=0.55, **pose)
-            self.notes.append(f"{name}: mesh {obj.get('mesh') or '(none)'} not found, "
+            handle = self.scene.add_box(node, color=color, dimensions=tuple(obj.bbox), opacity=0.55, **pose)
+            self.notes.append(f"{obj.name}: mesh {obj.mesh or '(none)'} not found, "
                               f"drawn as its bounding box")
         self._handles.append(handle)
-        self._objects[name] = handle
+        self._objects[obj.name] = handle
 
-    def _add_character(self, scene: dict[str, Any]) -> bool:
-        bodies = [str(b) for b in scene.get("bodies", ())]
-        inst = humanoid_instances(scene.get("body_geoms") or (), bodies)  # may raise: first
+    def _add_character(self, scene: SceneMessage) -> None:
+        inst = humanoid_instances(scene.body_geoms, scene.bodies)
         for kind, ins in inst.items():
             k = len(ins.bodies)
             handle = self.scene.add_batched_meshes_trimesh(
@@ -190,7 +180,6 @@ class RunScene:
         self._label = self.scene.add_label(f"/{self.slot}/character/label", "", visible=False,
                                            anchor="bottom-center")
         self._handles.append(self._label)
-        return True
 
     # --- the character ----------------------------------------------------------------------
     def _indices(self, bodies: Sequence[str]) -> dict[str, np.ndarray]:
@@ -289,11 +278,13 @@ class SceneView:
         self.b = RunScene(client.scene, client.atomic, "b")
         self._framed: tuple[np.ndarray, np.ndarray] | None = None
 
-    def show(self, slot: str, scene: dict[str, Any] | None) -> list[str]:
-        """Draw a run in slot 'a' or 'b' (B sits to the right of A); frames the camera when
-        the layout changed, so a run with the same layout keeps the user's view."""
+    def show(self, slot: str, scene: Any) -> list[str]:
+        """Draw a run's /scene message as read from its log (`scene`: the JSON object, salvaged
+        with `SceneMessage.salvage`) in slot 'a' or 'b' (B sits to the right of A); frames the
+        camera when the layout changed, so a run with the same layout keeps the user's view."""
         target = self.a if slot == "a" else self.b
-        notes = target.show(scene, np.zeros(3))
+        message, salvaged = SceneMessage.salvage(scene) if scene is not None else (None, [])
+        notes = target.show(message, np.zeros(3), salvaged)
         self.place_b()
         self.frame_camera()
         return notes
@@ -314,7 +305,7 @@ class SceneView:
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         shown = [s for s in (self.a, self.b) if s.shown]
         if not shown:
-            return scene_bounds({})
+            return scene_bounds(None)
         los = [s.bounds[0] + s.offset for s in shown]
         his = [s.bounds[1] + s.offset for s in shown]
         return np.min(los, axis=0), np.max(his, axis=0)

@@ -18,7 +18,7 @@ from detach.character.body import BODY_NAMES
 from detach.runfolder import log_tail
 from detach.runfolder.log_tail import LogTail, closed_cleanly
 from detach.runfolder.mcap_reader import read_episodes, read_metrics
-from detach.runfolder.messages import EpisodeFrame
+from detach.runfolder.messages import BodyGeom, EpisodeFrame
 from detach.runfolder.names import SCENE_TOPIC
 from detach.runs.mcap_log import RunLogWriter
 from server.cli import build_parser, main
@@ -364,7 +364,7 @@ def test_batched_primitives_sit_where_mujoco_puts_the_geoms() -> None:
     mujoco.mj_kinematics(model, data)
     ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, b) for b in BODY_NAMES]
     geoms = humanoid_geoms(model)
-    inst = humanoid_instances(geoms, BODY_NAMES)
+    inst = humanoid_instances([BodyGeom(**g) for g in geoms], BODY_NAMES)
     kinds = [g["type"] for g in geoms]
     assert len(inst["cylinder"].bodies) == kinds.count("capsule")
     assert len(inst["sphere"].bodies) == kinds.count("sphere") + 2 * kinds.count("capsule")

@@ -9,7 +9,9 @@ from pathlib import Path
 
 from detach.config import load_run_config, resolve
 from detach.runfolder.folder import RunFolder
-from detach.runfolder.messages import RunSummary, Status
+from detach.runfolder.messages import (
+    MAX_TEXT, BodyGeom, RunSummary, SceneMessage, SceneObject, SceneTarget, Status,
+)
 from detach.runfolder.summary import summary_of_config
 from detach.runs.listing import run_row
 from server.run_index import RunIndex
@@ -55,3 +57,30 @@ def test_list_and_dashboard_agree_on_dead_runs_and_implausible_evaluations(tmp_p
     assert any("'trials' must be >= 1" in p for p in infos[bad.path.name].problems)
     for name, row in rows.items():
         assert (row["task"], row["model"], row["seed"]) == (infos[name].task, infos[name].model, infos[name].seed)
+
+
+def test_a_malformed_scene_is_salvaged_into_a_typed_message_with_notes() -> None:
+    """The dashboard draws /scene only as a `SceneMessage`: a message that breaks the format is
+    salvaged part by part (the well-formed object, path and target kept; each bad part named
+    in a note; one bad geom drops the geoms, so the character is drawn as a sphere per body),
+    and a well-formed message reads the same as `from_json`."""
+    raw = {"objects": [{"name": "ok", "pos": [0, 0, 0.5], "bbox": [1, 1, 1]}, "not an object", {"pos": "xyz"}],
+           "trajectories": {"0": [[0, 0], "bad"], "1": [[0, 0], [1, 2]]},
+           "targets": [{"subtask": 0, "skill": "sit" * 40, "pos": [1, 2, 0.5], "color": [999, -4, 3]},
+                       {"subtask": 1, "skill": "climb", "pos": [float("nan"), 0, 0]}],
+           "bodies": ["a", "b"], "body_geoms": [{"type": "capsule", "size": "x"}]}
+    scene, notes = SceneMessage.salvage(raw)
+    assert [o.name for o in scene.objects] == ["ok"] and scene.objects[0].quat == [1.0, 0.0, 0.0, 0.0]
+    assert scene.trajectories == {"1": [[0.0, 0.0], [1.0, 2.0]]}
+    assert [(t.subtask, len(t.skill), t.color) for t in scene.targets] == [(0, MAX_TEXT, [255, 0, 3])]
+    assert scene.bodies == ["a", "b"] and scene.body_geoms == []
+    named = " ".join(notes)
+    for part in ("object 1", "object 2", "trajectory 0", "target 1", "body_geoms"):
+        assert f"/scene {part}: skipped" in named, notes
+    assert SceneMessage.salvage("garbage")[1] == ["/scene: skipped (expected an object, found str)"]
+    good = SceneMessage("lh1", [SceneObject("box", "Box", "Box/b/mesh.obj", [1, 0, 0.2], [1, 0, 0, 0],
+                                            [0.4, 0.4, 0.4], False)], {"0": [[0.0, 0.0], [1.0, 1.0]]},
+                        [SceneTarget(0, "carry", [1.0, 0.0, 0.2], [1, 2, 3])], ["pelvis"],
+                        [BodyGeom("pelvis", "sphere", [0.09], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0])])
+    wire = json.loads(json.dumps(good.to_json()))
+    assert SceneMessage.salvage(wire) == (SceneMessage.from_json(wire), [])

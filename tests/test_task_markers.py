@@ -140,7 +140,7 @@ def test_dashboard_replay_draws_each_frames_markers(tmp_path: Path) -> None:
     server = viser.ViserServer(host="127.0.0.1", port=_port(), verbose=False)
     try:
         view = RunScene(server.scene, server.atomic, "a")
-        view.show(scene.to_json(), np.zeros(3))
+        view.show(scene, np.zeros(3))
         nodes = server.scene._handle_from_node_name
         view.set_markers(view.frame_markers(ep, 1))
         assert {"path/done", "path/remaining", "path/reference", "target/0", "target/1", "target/ring",

@@ -25,7 +25,7 @@ from typing import Any, Sequence, Union
 
 import numpy as np
 
-from detach.runfolder.messages import SceneTarget
+from detach.runfolder.messages import MAX_COORD, MAX_TEXT, SceneTarget
 
 RGB = tuple[int, int, int]
 
@@ -47,9 +47,6 @@ PATH_Z = 0.05
 MAX_PATH_POINTS = 4096
 """A recorded path longer than this is dropped (a shipped path has ~100 vertices)."""
 MAX_SCORES = 64
-MAX_TEXT = 64
-MAX_COORD = 1e4
-"""Coordinates beyond this (m) are not a scene's: dropped."""
 OUTCOMES = ("success", "failure")
 
 
@@ -224,22 +221,6 @@ class PathMemo:
 
     def forget(self, key: Any) -> None:
         self._paths.pop(key, None)
-
-
-def scene_targets(scene: Any) -> list[SceneTarget]:
-    """The well-formed targets of a /scene message read from a log (malformed ones dropped)."""
-    targets = scene.get("targets") if isinstance(scene, dict) else None
-    out = []
-    for t in targets if isinstance(targets, list) else ():
-        if not isinstance(t, dict):
-            continue
-        sub, skill, pos, color = t.get("subtask"), t.get("skill"), _finite(t.get("pos"), 3), t.get("color")
-        if not isinstance(sub, int) or isinstance(sub, bool) or not isinstance(skill, str) or pos is None:
-            continue
-        rgb = _finite(color, 3)
-        out.append(SceneTarget(sub, skill[:MAX_TEXT], pos.tolist(),
-                               [int(np.clip(c, 0, 255)) for c in rgb] if rgb is not None else list(TARGET_COLOR)))
-    return out
 
 
 def task_state(frame: dict[str, Any], root: Any, path: np.ndarray | None) -> TaskState:

@@ -19,6 +19,12 @@ class ContractError(ValueError):
     """A file or message that does not follow the run-folder format."""
 
 
+MAX_TEXT = 64
+"""Longest name a viewer shows from a log (a skill, a subtask): longer ones are cut."""
+MAX_COORD = 1e4
+"""Coordinates beyond this (m) are not a scene's: a viewer drops them."""
+
+
 # ------------------------------------------------------------------------------- checks
 def need_key(data: Any, key: str, kinds: type | tuple[type, ...], where: str, optional: bool = False) -> Any:
     if not isinstance(data, dict):
@@ -213,6 +219,83 @@ class SceneMessage:
                  for g in data.get("body_geoms", []) if isinstance(g, dict)]
         return cls(str(data.get("task", "")), objects, trajectories, targets,
                    [str(b) for b in data.get("bodies", [])], geoms)
+
+    @classmethod
+    def salvage(cls, data: Any) -> tuple["SceneMessage", list[str]]:
+        """What a viewer can draw of a /scene message that may not follow the format, and a
+        note for each part left out: a broken log must not stop the dashboard. Missing poses
+        and sizes of an object or a geom take neutral defaults (origin, identity, a 0.3 m box);
+        a malformed object, path or target is left out; one malformed geom drops them all (the
+        character is then drawn as a sphere per body); coordinates past `MAX_COORD` and names
+        past `MAX_TEXT` count as malformed and cut."""
+        notes: list[str] = []
+
+        def part(what: str, fn, *args):
+            try:
+                return fn(*args)
+            except (ContractError, TypeError, ValueError, KeyError, AttributeError) as exc:
+                notes.append(f"{SCENE_TOPIC} {what}: skipped ({exc!r:.120})")
+                return None
+
+        if not isinstance(data, dict):
+            return cls("", [], {}, [], [], []), [f"{SCENE_TOPIC}: skipped (expected an object, found "
+                                                 f"{type(data).__name__})"]
+        objects = [o for i, raw in enumerate(_as_list(data.get("objects")))
+                   if (o := part(f"object {i}", _salvage_object, i, raw)) is not None]
+        paths = data.get("trajectories")
+        trajectories = {str(k): way for k, raw in (paths.items() if isinstance(paths, dict) else ())
+                        if (way := part(f"trajectory {k}", _salvage_path, raw)) is not None}
+        targets = [t for i, raw in enumerate(_as_list(data.get("targets")))
+                   if (t := part(f"target {i}", _salvage_target, raw)) is not None]
+        bodies = [str(b)[:MAX_TEXT] for b in _as_list(data.get("bodies"))]
+        geoms = part("body_geoms", lambda: [_salvage_geom(g) for g in _as_list(data.get("body_geoms"))]) or []
+        return cls(str(data.get("task", ""))[:MAX_TEXT], objects, trajectories, targets, bodies, geoms), notes
+
+
+def _as_list(value: Any) -> list:
+    return value if isinstance(value, list) else []
+
+
+def _coords(value: Any, n: int, default: tuple[float, ...] | None = None, at_least: bool = False) -> list[float]:
+    """`value` as n (or, `at_least`, n or more) finite numbers within MAX_COORD; `default` when absent."""
+    if value is None and default is not None:
+        return list(default)
+    if not isinstance(value, (list, tuple)) or (len(value) < n if at_least else len(value) != n):
+        raise ContractError(f"expected {n} numbers, found {value!r:.40}")
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+               and abs(v) <= MAX_COORD for v in value):
+        raise ContractError(f"expected finite coordinates within {MAX_COORD:g} m, found {value!r:.40}")
+    return [float(v) for v in value]
+
+
+def _salvage_object(i: int, o: Any) -> SceneObject:
+    if not isinstance(o, dict):
+        raise ContractError(f"expected an object, found {type(o).__name__}")
+    return SceneObject(name=str(o.get("name", f"object_{i}"))[:MAX_TEXT], category=str(o.get("category", "")),
+                       mesh=str(o.get("mesh") or ""), pos=_coords(o.get("pos"), 3, (0.0, 0.0, 0.0)),
+                       quat=_coords(o.get("quat"), 4, (1.0, 0.0, 0.0, 0.0)),
+                       bbox=_coords(o.get("bbox"), 3, (0.3, 0.3, 0.3)), static=bool(o.get("static", True)))
+
+
+def _salvage_path(way: Any) -> list[list[float]]:
+    return [_coords(p, 2, at_least=True)[:2] for p in (way if isinstance(way, list) else [way])]
+
+
+def _salvage_target(t: Any) -> SceneTarget:
+    sub, skill = need_key(t, "subtask", int, "target"), need_key(t, "skill", str, "target")
+    color = t.get("color")
+    try:
+        rgb = [int(min(max(c, 0), 255)) for c in _coords(color, 3)]
+    except ContractError:
+        rgb = [220, 40, 40]  # no colour, or a bad one: the default
+    return SceneTarget(sub, skill[:MAX_TEXT], _coords(t.get("pos"), 3), rgb)
+
+
+def _salvage_geom(g: Any) -> BodyGeom:
+    if not isinstance(g, dict):
+        raise ContractError(f"expected an object, found {type(g).__name__}")
+    return BodyGeom(str(g.get("body", "")), str(g.get("type", "")), _coords(g.get("size"), 1, (0.05,), at_least=True),
+                    _coords(g.get("pos"), 3, (0.0, 0.0, 0.0)), _coords(g.get("quat"), 4, (1.0, 0.0, 0.0, 0.0)))
 
 
 def _vec(data: Any, key: str, n: int, where: str) -> list[float]:
