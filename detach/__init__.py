@@ -63,6 +63,7 @@ PUBLIC: dict[str, tuple[str, ...]] = {
     "detach.train.setup": ("seed_everything", "apply_torch_threads", "prepare_assets", "build_runner",
                            "load_initial_weights", "apply_action_means", "merge_normalizers"),
     "detach.train.checkpoints": ("newest_readable_checkpoint",),
+    "detach.train.start_library": ("make_training_env",),
     # evaluation, policies, tables and the pictures of a task
     "detach.eval.episodes": ("run_evaluation",),
     "detach.runs.policy": ("load_policy",),
@@ -149,6 +150,7 @@ if TYPE_CHECKING:  # what type checkers and editors see; tests/test_architecture
     from detach.torch_math import point_box_distance, wrap_angle, yaw_of
     from detach.train.checkpoints import newest_readable_checkpoint
     from detach.train.checks import complete_run_config
+    from detach.train.start_library import make_training_env
     from detach.train.setup import (
         apply_action_means, apply_torch_threads, build_runner, load_initial_weights, merge_normalizers,
         prepare_assets, seed_everything,

@@ -49,7 +49,8 @@ def test_body_positions_are_mujoco_fk(clips):
 
 @pytest.mark.parametrize("name", ["idle_breathe", "idle_shift", "walk_1p42", "walk_1p48", "walk_1p90",
                                   "turn_left_90", "turn_right_90", "walk_turn_left", "walk_turn_right", "step_up_0p30",
-                                  "step_up_0p45", "sit_down", "sit_stand_up", "carry_walk", "carry_stand"])
+                                  "step_up_0p45", "step_up_0p50", "sit_down", "sit_stand_up",
+                                  "carry_walk", "carry_stand"])
 def test_plausible(clips, name):
     c = clips[name]
     p = check_clip(c)
@@ -82,9 +83,17 @@ def test_sit_and_step_targets(clips):
     seat_top = sit.meta["props"][0]["center"][2] + sit.meta["props"][0]["half"][2]
     assert seat_top == pytest.approx(0.45)
     assert sit.root_pos[-1, 2] == pytest.approx(seat_top + 0.1, abs=0.01)  # pelvis 0.1 m above the seat
-    step = clips["step_up_0p45"]
-    feet = step.body_pos[-1, [BODY_NAMES.index("left_foot"), BODY_NAMES.index("right_foot")], 2]
-    assert feet == pytest.approx([0.45 + 0.075] * 2, abs=0.005)  # both ankles above the step top
+    for height in (0.45, 0.50):
+        step = clips[f"step_up_0p{round(height * 100):02d}"]
+        feet = step.body_pos[-1, [BODY_NAMES.index("left_foot"), BODY_NAMES.index("right_foot")], 2]
+        assert feet == pytest.approx([height + 0.075] * 2, abs=0.005)  # both ankles above the step top
+
+
+def test_a_step_up_clip_at_the_climb_tasks_height(clips):
+    """The style reward's Climb clips reach the climb task's 0.50 m platform (LH1's 0.70 m and
+    LH3's 0.86 m boxes are past this recipe: `builtin._step_up`)."""
+    heights = sorted(c.meta["props"][0]["half"][2] * 2 for c in clips.values() if c.skill == "step_up")
+    assert min(abs(h - 0.50) for h in heights) <= 0.02, heights
 
 
 def test_default_motion_lib(clips):

@@ -17,7 +17,7 @@ on a laptop; they are not human motion capture. Import real clips with `detach-m
 | walk_1p90 | walk | brisk walking at 1.9 m/s, longer strides (catching up with a trajectory) |
 | turn_left_90, turn_right_90 | turn | stepping in place while turning 90 degrees |
 | walk_turn_left, walk_turn_right | turn | walking 1.2 m/s on a curve (0.5 rad/s) |
-| step_up_0p30, step_up_0p45 | step_up | stepping onto a 0.30 / 0.45 m high step (prop in meta) |
+| step_up_0p30, _0p45, _0p50 | step_up | stepping onto a 0.30 / 0.45 / 0.50 m high step (prop in meta) |
 | sit_down, sit_stand_up | sit | sitting onto a 0.45 m seat (prop in meta) / standing back up |
 | carry_walk, carry_stand | carry | both arms forward holding an imaginary box, walking 1.0 m/s / standing |
 """
@@ -37,7 +37,7 @@ from detach.motion.placement import Terrain, pose_clip_arrays
 from detach.motion.rotations import quat_from_yaw_pitch
 
 FPS = 30.0
-BUILTIN_VERSION = 1
+BUILTIN_VERSION = 2
 _IDX = {n: i for i, n in enumerate(DOF_NAMES)}
 _SIDES = ("left", "right")
 
@@ -248,22 +248,28 @@ def _key_legs(keys: list[dict], t: np.ndarray) -> tuple[_Tracks, np.ndarray]:
     return q, pitch
 
 
-def _step_up(name: str, height: float) -> MotionClip:
-    """Left foot onto a step of `height` m (edge 0.28 m ahead of the ankles), push up, bring the
-    right foot alongside. The step is a box prop recorded in meta["props"]."""
+def _step_up(name: str, height: float, reach: float = 0.45, lean: float = 0.0) -> MotionClip:
+    """Left foot onto a step of `height` m (edge 0.28 m ahead of the ankles, the foot `reach` m
+    ahead), push up, bring the right foot alongside. The step is a box prop recorded in
+    meta["props"]. `reach` and `lean` (< 0: the pelvis leans back while the foot goes up) are
+    there for higher steps; this recipe stays plausible (`detach.motion.plausibility`) up to
+    0.50 m: from 0.60 m the lifted shin cuts the step's edge and the support foot slides (2 m/s
+    at 0.70 m, LH1's box), and a one-leg step onto 0.86 m (LH3's) would need the hip 60 degrees
+    past its range."""
     a0, top = _leg().ankle, height + _leg().ankle
     edge = 0.28
     stand = 0.93
     keys = [
         dict(t=0.0, pelvis=(0.0, stand, 0.0), left=(0.0, a0), right=(0.0, a0)),
         dict(t=0.35, pelvis=(0.0, stand, 0.02), left=(0.0, a0), right=(0.0, a0)),
-        dict(t=0.75, pelvis=(0.0, stand - 0.01, 0.12), left=(edge - 0.18, top + 0.06), right=(0.0, a0)),
-        dict(t=1.05, pelvis=(0.03, stand - 0.02, 0.18), left=(0.42, top + 0.03), right=(0.0, a0)),
-        dict(t=1.30, pelvis=(0.06, stand - 0.03, 0.22), left=(0.45, top), right=(0.0, a0)),
-        dict(t=2.00, pelvis=(0.40, stand + height - 0.03, 0.15), left=(0.45, top), right=(edge - 0.2, top + 0.06)),
-        dict(t=2.45, pelvis=(0.45, stand + height - 0.01, 0.08), left=(0.45, top), right=(0.45, top + 0.06)),
-        dict(t=2.80, pelvis=(0.45, stand + height, 0.03), left=(0.45, top), right=(0.45, top)),
-        dict(t=3.20, pelvis=(0.45, stand + height, 0.02), left=(0.45, top), right=(0.45, top)),
+        dict(t=0.75, pelvis=(0.0, stand - 0.01, 0.12 + lean), left=(edge - 0.18, top + 0.06), right=(0.0, a0)),
+        dict(t=1.05, pelvis=(0.03, stand - 0.02, 0.18 + lean), left=(reach - 0.03, top + 0.03), right=(0.0, a0)),
+        dict(t=1.30, pelvis=(0.06, stand - 0.03, 0.22 + lean), left=(reach, top), right=(0.0, a0)),
+        dict(t=2.00, pelvis=(reach - 0.05, stand + height - 0.03, 0.15), left=(reach, top),
+             right=(edge - 0.2, top + 0.06)),
+        dict(t=2.45, pelvis=(reach, stand + height - 0.01, 0.08), left=(reach, top), right=(reach, top + 0.06)),
+        dict(t=2.80, pelvis=(reach, stand + height, 0.03), left=(reach, top), right=(reach, top)),
+        dict(t=3.20, pelvis=(reach, stand + height, 0.02), left=(reach, top), right=(reach, top)),
     ]
     t = np.arange(int(round(keys[-1]["t"] * FPS)) + 1) / FPS
     q, pitch = _key_legs(keys, t)
@@ -321,6 +327,7 @@ _RECIPES = (
     lambda: _walk("walk_turn_right", "turn", 1.2, cycles=4, yaw_rate=-0.5, notes="1.2 m/s, -0.5 rad/s"),
     lambda: _step_up("step_up_0p30", 0.30),
     lambda: _step_up("step_up_0p45", 0.45),
+    lambda: _step_up("step_up_0p50", 0.50),                        # the climb task's platform
     lambda: _sit("sit_down", down=True),
     lambda: _sit("sit_stand_up", down=False),
     lambda: _walk("carry_walk", "carry", 1.0, cycles=4, g=_Gait(hip_front=0.34, hip_back=0.26, pitch=0.02, carry=True),

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import torch
 
-from detach import BODY_NAMES, FEET, FOOT_TO_SOLE, RunFolder, load_policy, make_env, seed_everything
+from detach import BODY_NAMES, FEET, FOOT_TO_SOLE, RunFolder, load_policy, make_training_env, seed_everything
 
 NUM_ENVS = 32
 FEET_IDS = [BODY_NAMES.index(b) for b in FEET]
@@ -26,7 +26,7 @@ def main() -> None:
     if climb > 0:
         cfg = replace(cfg, env=replace(cfg.env, subtask_start_prob=1.0))
     seed_everything(1)
-    env = make_env(cfg, num_envs=NUM_ENVS, device="cpu", verbose=False)
+    env = make_training_env(cfg, num_envs=NUM_ENVS, device="cpu", verbose=False)  # with the recorded starts
     actor, _ = load_policy(cfg, env, Path(sys.argv[2]))
     obs = env.get_observations()
     ctx = env.context()

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import torch
 
-from detach import RunFolder, load_policy, make_env, seed_everything
+from detach import RunFolder, load_policy, make_training_env, seed_everything
 
 NUM_ENVS, STEPS, HOLD = 32, 450, 20
 
@@ -28,7 +28,7 @@ def main() -> None:
     cfg = replace(cfg, env=replace(cfg.env, subtask_start_prob=1.0))
     policy_cfg = RunFolder(Path(sys.argv[3])).config() if len(sys.argv) > 3 else cfg
     seed_everything(1)
-    env = make_env(cfg, num_envs=NUM_ENVS, device="cpu", verbose=False)
+    env = make_training_env(cfg, num_envs=NUM_ENVS, device="cpu", verbose=False)  # with the recorded starts
     actor, _ = load_policy(policy_cfg, env, Path(sys.argv[2]))
     obs = env.get_observations()
     live = env.context().subtask == sit
