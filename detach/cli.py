@@ -174,20 +174,20 @@ def _add_train_options(parser: argparse.ArgumentParser) -> None:
 
 def _add_sweep_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true",
-                        help="with --sweep: use the sweep's quick preset (CPU smoke run)")
+                        help="use the sweep's quick preset (CPU smoke run)")
     parser.add_argument("--jobs", type=_int_in(1), default=1,
-                        help="with --sweep: cells run in parallel (default: 1, as each run uses every "
+                        help="cells run in parallel (default: 1, as each run uses every "
                              "core; detach-scene build defaults to all cores); each gets cores / JOBS torch "
                              "threads, or every core when nothing else of the sweep can run beside it")
     parser.add_argument("--models", default=None, metavar="A,B",
-                        help="with --sweep: run only these of the sweep's models (their cells are "
+                        help="run only these of the sweep's models (their cells are "
                              "the same as in the whole sweep, so a later full run skips them)")
     parser.add_argument("--seeds", type=_seed_list, default=None, metavar="0,1",
-                        help="with --sweep: run these seeds instead of the preset's (a cell of seed S is "
+                        help="run these seeds instead of the preset's (a cell of seed S is "
                              "the same as in a sweep that lists S, so `--seeds 0,1` after a one-seed "
                              "sweep trains only seed 1's cells); `detach-run table --seeds` pools them")
     parser.add_argument("--launcher", choices=["local", "ray", "slurm"], default="local",
-                        help="with --sweep: a local worker pool, Ray tasks (the cluster of "
+                        help="a local worker pool, Ray tasks (the cluster of "
                              "RAY_ADDRESS, else a local Ray; the [ray] extra) or SLURM jobs through "
                              "submitit (the [slurm] extra; DETACH_SUBMITIT holds the job parameters "
                              "as JSON, docs/PROTOCOL.md)")
@@ -356,11 +356,11 @@ def build_table_parser() -> argparse.ArgumentParser:
                              "is its printed formula (docs/PROTOCOL.md)")
     which = parser.add_mutually_exclusive_group()
     which.add_argument("--preset", default=None, metavar="NAME",
-                       help="with a sweep: the cells of this sweep preset (as run with --sweep --preset)")
+                       help="with a sweep: the cells of this sweep preset (as `detach-run sweep --preset` ran them)")
     which.add_argument("--quick", action="store_true", help="with a sweep: the cells of its quick preset")
     parser.add_argument("--seeds", type=_seed_list, default=None, metavar="0,1",
-                        help="with a sweep: the cells of these seeds instead of the preset's (as run with "
-                             "--sweep --seeds); the table pools each model's seeds")
+                        help="with a sweep: the cells of these seeds instead of the preset's (as `detach-run "
+                             "sweep --seeds` ran them); the table pools each model's seeds")
     parser.add_argument("--trial-set", choices=["test", "development"], default=None,
                         help="which evaluations: the held-out test trials (a sweep's default, where it has "
                              "a test_seed_offset) or the development trials (a runs folder's default; "
