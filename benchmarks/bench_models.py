@@ -22,7 +22,7 @@ import time
 import torch
 from tensordict import TensorDict
 
-from detach.config_schema import ModelCfg
+from detach.config.schema import ModelCfg
 from detach.models.cml import CMLCfg
 from detach.models.detach_net import DetachCfg
 from detach.models.mlp import MLPCfg

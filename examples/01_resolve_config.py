@@ -8,7 +8,7 @@ overrides, into one frozen `RunConfig` of typed sections. Tasks and models are f
 """
 
 from detach.config import dump, find_task_file, resolve
-from detach.config_keys import format_keys, select
+from detach.config.keys import format_keys, select
 
 
 def main() -> None:

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn as nn
 
-from detach.config_schema import ModelCfg
+from detach.config.schema import ModelCfg
 from detach.models import StructuredModel, register_model
 from detach.models.layout import HISTORY_GROUPS, ObsLayout
 

@@ -17,8 +17,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("detach", "scene_builder", "server")
 
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("config", ("detach", "detach.yaml_source", "detach.config_validate", "detach.config_schema",
-                "detach.config", "detach.torch_math", "detach.host_sync")),
+    ("config", ("detach", "detach.config", "detach.torch_math", "detach.host_sync")),
     ("runfolder", ("detach.runfolder",)),
     ("assets", ("scene_builder",)),
     ("character", ("detach.character",)),
@@ -353,7 +352,7 @@ CLI_MAX_LINES = 550
 """detach/cli.py is argparse definitions plus one call per command (835 lines with run logic)."""
 
 CLI_MAY_IMPORT = {"detach.config", "detach.eval.trial_sets", "detach.runs.actions", "detach.runs.command",
-                  "detach.runs.listing", "detach.runs.tables_cli", "detach.config_keys"}
+                  "detach.runs.listing", "detach.runs.tables_cli", "detach.config.keys"}
 """ConfigError and a flag's bound; the API; how a command ends; the read-only reports (list,
 table, keys). Anything else (run folders, sessions, jobs, training, sweeps) is run logic, which
 belongs to the API (`detach.runs.actions`), where a sweep's worker calls it too."""

@@ -15,7 +15,7 @@ import yaml
 
 from detach import cli
 from detach.config import resolve
-from detach.config_schema import StagesCfg
+from detach.config.schema import StagesCfg
 from detach.runfolder.folder import RunFolder
 from detach.runs.provenance import code_change_since, git_state
 from detach.train.schedule import extend_schedule, stage_at, stage_lengths

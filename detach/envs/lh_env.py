@@ -16,7 +16,7 @@ import torch
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
-from detach.config_schema import RunConfig
+from detach.config.schema import RunConfig
 from detach.envs.observations import ObservationBuilder
 from detach.envs.oracle import ORACLE_GROUP, Oracle
 from detach.envs.plan_tracker import PlanTracker

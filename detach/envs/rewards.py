@@ -26,7 +26,7 @@ from typing import Callable, Sequence
 
 import torch
 
-from detach.config_schema import RewardsCfg
+from detach.config.schema import RewardsCfg
 from detach.host_sync import may_any
 from detach.skills import canonical_name, run_skills, skill_class, skill_names
 from detach.skills.base import Subtask

@@ -15,7 +15,7 @@ import torch
 import torch.nn.functional as F
 from tensordict import TensorDict
 
-from detach.config_schema import ModelCfg
+from detach.config.schema import ModelCfg
 from detach.envs.obs_spec import ObsSpec
 
 HISTORY_GROUPS: tuple[str, ...] = ("self", "env")

@@ -5,7 +5,7 @@ default), its trunk and its `StructuredModel` subclass, which ends with
 `register_model(TheModel, labels={...})`. The built-in kinds register as `detach.models`
 imports them; a kind outside the package registers when its module is imported, which the
 configuration loader does for `kind: package.module:ConfigClass` or for an entry point of the
-`detach.model_kinds` group of an installed add-on package (`detach.config_schema`).
+`detach.model_kinds` group of an installed add-on package (`detach.config.schema`).
 
 The registry also holds the names the tables print: `labels` maps each model YAML of the kind
 (configs/models/<name>.yaml, the `model` of a run and of its eval.json) to its row label, and
@@ -20,7 +20,7 @@ import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-from detach.config_schema import ModelCfg, register_model_kind
+from detach.config.schema import ModelCfg, register_model_kind
 from detach.models.structured import StructuredModel
 
 

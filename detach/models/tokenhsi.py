@@ -36,7 +36,7 @@ import torch.nn as nn
 from rsl_rl.modules import MLP, EmpiricalNormalization
 from tensordict import TensorDict
 
-from detach.config_schema import ModelCfg
+from detach.config.schema import ModelCfg
 from detach.models.attention import MultiHeadAttention
 from detach.models.layout import ObsLayout, TrunkModelCfg, no_columns
 from detach.models.registry import register_model

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Sequence
 
 from detach.config import ConfigError, dump, resolve
-from detach.config_schema import RunConfig
+from detach.config.schema import RunConfig
 from detach.runfolder.folder import RunFolder, run_folder_name
 from detach.runfolder.names import EXPORT_FORMATS
 

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Sequence
 
 from detach.config import ConfigError, load_run_config
-from detach.config_schema import RunConfig
+from detach.config.schema import RunConfig
 from detach.eval.trial_sets import TrialSetError
 from detach.runfolder.folder import RunFolder
 from detach.runfolder.liveness import STALE_AFTER_S, this_host

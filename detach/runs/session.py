@@ -16,8 +16,8 @@ from typing import Sequence
 import yaml
 
 from detach.config import load_run_config, load_task
-from detach.config_validate import to_plain
-from detach.config_schema import RunConfig
+from detach.config.validate import to_plain
+from detach.config.schema import RunConfig
 from detach.envs.lh_env import make_env
 from detach.eval.aids import run_aids
 from detach.eval.episodes import TrainingEpisodes, run_evaluation

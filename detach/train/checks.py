@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 
 from detach.character import character_class
-from detach.config_schema import RunConfig
+from detach.config.schema import RunConfig
 from detach.envs.rewards import check_reward_terms
 from detach.models.registry import model_class
 from detach.sim import SimConfigError, check_backend, check_sim, sim_settings

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from typing import ClassVar, Literal
 
-from detach.yaml_source import ConfigOrigin
+from detach.config.yaml_source import ConfigOrigin
 
 Vec2 = tuple[float, float]
 Vec3 = tuple[float, float, float]

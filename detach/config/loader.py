@@ -1,4 +1,4 @@
-"""The strict, Hydra-free configuration loader.
+"""The strict, Hydra-free configuration loader (re-exported by `detach.config`).
 
 A run's configuration is one task YAML (configs/tasks/) merged with one model YAML
 (configs/models/), each possibly `extends:`-ing others (relative paths, chained, deep merge,
@@ -17,11 +17,11 @@ from typing import Any, Sequence
 
 import yaml
 
-from detach.config_schema import (
+from detach.config.schema import (
     VALUE_RANGES, EnvCfg, EvalCfg, ModelCfg, RewardsCfg, RunConfig, SimCfg, TaskCfg, TrainCfg,
 )
-from detach.config_validate import Builder, describe, suggest, to_plain
-from detach.yaml_source import (
+from detach.config.validate import Builder, describe, suggest, to_plain
+from detach.config.yaml_source import (
     ConfigError, ConfigOrigin, KeyPath, Provenance, format_path, load_yaml, parse_scalar,
 )
 
@@ -31,9 +31,6 @@ MODEL_SECTIONS: dict[str, Any] = {"model": ModelCfg, "train": TrainCfg}
 TASK_KEYS = tuple(f.name for f in dataclasses.fields(TaskCfg))
 RUN_KEYS = ("task_name", "model_name", "seed", "device")
 TARGET_SOURCE = re.compile(r"^(traj|tarpos|scene)_(\d+|rand)$")
-
-__all__ = ["ConfigError", "resolve", "dump", "load_run_config", "load_task",
-           "load_merged", "apply_overrides", "find_model_file", "task_name_of"]
 
 
 # ---------------------------------------------------------------------------- extends + merge
@@ -260,7 +257,7 @@ def task_name_of(task_path: Path) -> str:
 def builtin_configs() -> Path:
     """The configs/ shipped with detach: `detach/configs/` inside an installed wheel (package
     data), the checkout's `configs/` in a source tree or an editable install."""
-    here = Path(__file__).resolve().parent
+    here = Path(__file__).resolve().parent.parent  # detach/
     packaged = here / "configs"
     return packaged if packaged.is_dir() else here.parent / "configs"
 

@@ -1,6 +1,6 @@
 """`detach-run keys [section]`: every config key with its type, default and doc.
 
-Generated from the dataclasses of `detach.config_schema` and the config classes of the
+Generated from the dataclasses of `detach.config.schema` and the config classes of the
 registered model kinds (`detach.models.register_model`, installed add-ons included), so the list cannot drift from
 what the loader accepts. A field's doc is the string literal under it in the class body (the
 convention of this code base); ranges come from `VALUE_RANGES`.
@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any, Iterator
 
-from detach.config_schema import (
+from detach.config.schema import (
     VALUE_RANGES, EnvCfg, EvalCfg, ModelCfg, RewardsCfg, SimCfg, TaskCfg, TrainCfg, registered_model_kinds,
 )
 
