@@ -3,7 +3,7 @@
 Generated from the dataclasses of `detach.config.schema` and the config classes of the
 registered model kinds (`detach.models.register_model`, installed add-ons included), so the list cannot drift from
 what the loader accepts. A field's doc is the string literal under it in the class body (the
-convention of this code base); ranges come from `VALUE_RANGES`.
+convention of this code base); a range is the field's own (`detach.config.ranges.ranged`).
 """
 
 from __future__ import annotations
@@ -18,8 +18,9 @@ from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any, Iterator
 
+from detach.config.ranges import range_of
 from detach.config.schema import (
-    VALUE_RANGES, EnvCfg, EvalCfg, ModelCfg, RewardsCfg, SimCfg, TaskCfg, TrainCfg, registered_model_kinds,
+    EnvCfg, EvalCfg, ModelCfg, RewardsCfg, SimCfg, TaskCfg, TrainCfg, registered_model_kinds,
 )
 
 SECTIONS: dict[str, type] = {"task": TaskCfg, "sim": SimCfg, "env": EnvCfg, "rewards": RewardsCfg,
@@ -133,7 +134,7 @@ def _keys_of(cls: type, prefix: str, section: str, kind: str | None = None,
             yield from _keys_of(nested, f"{path}.", section, kind)
         else:
             doc = docs.get(f.name, "")
-            rng = VALUE_RANGES.get(path)
+            rng = range_of(f)
             if rng is not None:
                 doc = f"{doc} (range: {rng.describe()})".strip()
             yield Key(path, type_name(tp), _default_text(f), doc, section, kind)

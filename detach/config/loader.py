@@ -18,8 +18,9 @@ from typing import Any, Sequence
 import yaml
 
 from detach.config.schema import (
-    VALUE_RANGES, EnvCfg, EvalCfg, ModelCfg, RewardsCfg, RunConfig, SimCfg, TaskCfg, TrainCfg,
+    EnvCfg, EvalCfg, ModelCfg, RewardsCfg, RunConfig, SimCfg, TaskCfg, TrainCfg,
 )
+from detach.config.ranges import check_ranges
 from detach.config.validate import Builder, describe, suggest, to_plain
 from detach.config.yaml_source import (
     ConfigError, ConfigOrigin, KeyPath, Provenance, format_path, load_yaml, parse_scalar,
@@ -185,22 +186,8 @@ def _build_run(data: dict[str, Any], prov: Provenance, file: str,
     hints = typing.get_type_hints(RunConfig)
     runs = {k: builder.build(hints[k], data.get(k, run_keys[k]), (k,)) for k in RUN_KEYS}
     cfg = RunConfig(task=task, **runs, **sections, origin=ConfigOrigin(file, prov))
-    check_ranges(cfg)
+    check_ranges(cfg, cfg.origin)
     return cfg
-
-
-def check_ranges(cfg: RunConfig) -> None:
-    """Every field of `VALUE_RANGES` within its range (ConfigError at the value's file/line)."""
-    for dotted, allowed in VALUE_RANGES.items():
-        value: Any = cfg
-        for part in dotted.split("."):
-            value = getattr(value, part, None)
-        if isinstance(value, (int, float)) and not isinstance(value, bool) and not allowed.admits(value):
-            finite = "finite " if value in (float("inf"), float("-inf")) else ""
-            path, message = tuple(dotted.split(".")), f"expected a {finite}value {allowed.describe()}, found {value}"
-            if path in cfg.origin.prov:
-                raise cfg.origin.error(path, message)
-            raise ConfigError(message, "<command line>", None, path)  # e.g. --seed: in no file
 
 
 def check_model(model: ModelCfg, builder: Builder) -> None:
