@@ -9,6 +9,7 @@ frame unless a field says otherwise.
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
@@ -204,9 +205,10 @@ class EvalCfg:
     confidence: float = ranged(0.95, Range(0, 1, open_low=True, open_high=True))
 
 
-BUILTIN_MODELS = "detach.models"
-"""The package whose modules register the built-in model kinds (`register_model`): imported by
-name the first time a kind is looked up, so the configuration layer depends on no network."""
+BUILTIN_MODELS = "detach.models.configs"
+"""The torch-free module of the built-in model kinds' config classes, which registers them
+(`register_model_kind`) when imported: imported by name the first time a kind is looked up, so
+the configuration layer depends on no network and imports no torch."""
 MODEL_KIND_ENTRY_POINTS = "detach.model_kinds"
 """Entry-point group of installed add-on packages: each entry names a model kind's module (or
 its config class); loading it registers the kind. A model YAML may instead give
@@ -216,14 +218,20 @@ _KIND_CLASSES: dict[str, type["ModelCfg"]] = {}
 
 
 def register_model_kind(kind: str, config_class: type["ModelCfg"] | None) -> None:
-    """Map a model kind to its config class; called by `register_model`. None removes the kind
-    and the `package.module:Class` names that resolved to its class."""
+    """Map a model kind to its config class; called for the built-in kinds by `BUILTIN_MODELS`
+    and for every kind by `register_model`. None removes the kind and the `package.module:Class`
+    names that resolved to its class."""
     if config_class is not None:
         _KIND_CLASSES[kind] = config_class
         return
     removed = _KIND_CLASSES.pop(kind, None)
     for name in [k for k, cls in _KIND_CLASSES.items() if cls is removed and ":" in k]:
         del _KIND_CLASSES[name]
+
+
+def kind_of(config_class: type["ModelCfg"]) -> str:
+    """The kind a config class declares: the default of its `kind` field."""
+    return next(f.default for f in dataclasses.fields(config_class) if f.name == "kind")
 
 
 def registered_model_kinds() -> dict[str, type["ModelCfg"]]:
@@ -242,7 +250,7 @@ def registered_model_kinds() -> dict[str, type["ModelCfg"]]:
 @dataclass(frozen=True)
 class ModelCfg:
     """What every network of the study reads; `kind` picks the config class of the network
-    (declared beside it in `detach.models`), which adds that network's own fields."""
+    (a built-in kind's in `detach.models.configs`), which adds that network's own fields."""
 
     kind: str = "mlp"
     adapter_units: tuple[int, ...] = (1024, 512)

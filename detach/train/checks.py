@@ -67,6 +67,10 @@ def complete_run_config(cfg: RunConfig) -> RunConfig:
         model_class(cfg.model)
     except ValueError as exc:
         raise origin.error(("model", "kind"), str(exc)) from None
+    invalid_skills = getattr(cfg.model, "invalid_skills", None)  # a model kind's rules on skill names
+    problem = invalid_skills(canonical_name) if invalid_skills is not None else None
+    if problem is not None:
+        raise origin.error(("model", problem[0]), problem[1])
     for i, skill in enumerate(cfg.rewards.paid_skills or ()):
         try:
             canonical_name(skill)
