@@ -50,11 +50,10 @@ CUDA_GRAPH = {"on": True}
 
 
 def _cfg(task: str, model: str, overrides: list[str]):
-    from detach.config import resolve
-    from detach.train.checks import complete_run_config
+    from detach.train.run_config import resolve_run
 
     graph = f"sim.cuda_graph={'true' if CUDA_GRAPH['on'] else 'false'}"
-    return complete_run_config(resolve(TASKS / f"{task}.yaml", model, ["sim.backend=warp", graph, *overrides]))
+    return resolve_run(TASKS / f"{task}.yaml", model, ["sim.backend=warp", graph, *overrides])
 
 
 def raw_physics(ns: list[int], device: torch.device, seconds: float) -> list[dict]:

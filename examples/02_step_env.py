@@ -10,13 +10,13 @@ import argparse
 
 import torch
 
-from detach.config import find_task_file, resolve
+from detach.config import find_task_file
 from detach.envs.lh_env import make_env
-from detach.train.checks import complete_run_config
+from detach.train.run_config import resolve_run
 
 
 def main(steps: int = 30) -> None:
-    cfg = complete_run_config(resolve(find_task_file("follow"), "mlp", ["env.character=puppet"]))
+    cfg = resolve_run(find_task_file("follow"), "mlp", ["env.character=puppet"])
     env = make_env(cfg, num_envs=2, eval_mode=True)
     obs = env.get_observations()
     print({key: tuple(value.shape) for key, value in obs.items()})

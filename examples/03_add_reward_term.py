@@ -9,11 +9,11 @@ its target and distance) with a default weight; the config sets any weight as
 
 import torch
 
-from detach.config import find_task_file, resolve
+from detach.config import find_task_file
 from detach.envs.lh_env import make_env
 from detach.skills import RewardTerm, skill_class
 from detach.skills.context import SkillContext
-from detach.train.checks import complete_run_config
+from detach.train.run_config import resolve_run
 
 
 def upright(ctx: SkillContext) -> torch.Tensor:
@@ -27,8 +27,8 @@ def main() -> None:
     follow = skill_class("follow")
     follow.reward_terms = {**follow.reward_terms, "upright": RewardTerm(upright, 0.1)}
     try:
-        cfg = complete_run_config(resolve(find_task_file("follow"), "mlp",
-                                          ["env.character=puppet", "+rewards.terms.follow/upright=0.2"]))
+        cfg = resolve_run(find_task_file("follow"), "mlp",
+                          ["env.character=puppet", "+rewards.terms.follow/upright=0.2"])
         env = make_env(cfg, num_envs=2, eval_mode=True)
         assert "follow/upright" in env.rewards.active
         _obs, reward, _dones, _extras = env.step(torch.zeros(env.num_envs, env.num_actions))

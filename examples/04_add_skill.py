@@ -15,13 +15,13 @@ from pathlib import Path
 import torch
 
 from detach.character.body import BODY_NAMES
-from detach.config import builtin_configs, resolve
+from detach.config import builtin_configs
 from detach.envs.lh_env import make_env
 from detach.envs.oracle import Oracle
 from detach.eval.episodes import run_evaluation
 from detach.skills import RewardTerm, Skill, register_skill, unregister_skill
 from detach.skills.context import OracleCommand, SkillContext
-from detach.train.checks import complete_run_config
+from detach.train.run_config import resolve_run
 
 RIGHT_HAND = BODY_NAMES.index("right_hand")
 
@@ -60,7 +60,7 @@ def main() -> None:
                 sample_target_from: [tarpos_0]
                 env: {{episode_length: 300}}
                 """))
-            cfg = complete_run_config(resolve(task, "mlp", ["env.character=puppet"]))
+            cfg = resolve_run(task, "mlp", ["env.character=puppet"])
             env = make_env(cfg, num_envs=2, eval_mode=True)
             oracle = Oracle(env)
             result = run_evaluation(env, lambda _obs: oracle(), trials=2, cfg=cfg, progress=False)

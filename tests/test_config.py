@@ -244,15 +244,14 @@ def test_unknown_model_suggests_closest(capsys: pytest.CaptureFixture[str]) -> N
 
 
 def test_action_std_defaults_to_the_characters_and_an_override_wins() -> None:
-    from detach.train.checks import complete_run_config
+    from detach.train.run_config import resolve_run
 
     follow = ROOT / "configs/tasks/follow.yaml"
     assert resolve(follow, "detach").model.init_noise_std is None  # null: the character's
-    assert complete_run_config(resolve(follow, "detach")).model.init_noise_std == 0.1
-    assert complete_run_config(resolve(follow, "mlp", ["env.character=puppet"])).model.init_noise_std == 1.0
-    assert complete_run_config(resolve(follow, "mlp", ["env.character=puppet", "model.init_noise_std=0.3"])
-                               ).model.init_noise_std == 0.3
-    dumped = dump(complete_run_config(resolve(follow, "tokenhsi")))
+    assert resolve_run(follow, "detach").model.init_noise_std == 0.1
+    assert resolve_run(follow, "mlp", ["env.character=puppet"]).model.init_noise_std == 1.0
+    assert resolve_run(follow, "mlp", ["env.character=puppet", "model.init_noise_std=0.3"]).model.init_noise_std == 0.3
+    dumped = dump(resolve_run(follow, "tokenhsi"))
     assert "init_noise_std: 0.1" in dumped  # config.yaml has the number
 
 

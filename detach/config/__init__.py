@@ -2,9 +2,11 @@
 
 load (`yaml_source`: YAML with file and line of every value) -> merge (`loader`: `extends:`,
 task + model + presets) -> override (`a.b=value`) -> build and validate (`validate.Builder`
-walks the dataclasses of `schema`, whose type hints are the schema) -> a frozen `RunConfig`.
-`dump` writes it as a self-contained YAML that `load_run_config` reads back identically;
-`keys` lists every key (`detach-run keys`).
+walks the dataclasses of `schema`, whose type hints are the schema; `ranges`: the range each
+numeric field declares) -> a frozen `RunConfig`. `dump` writes it as a self-contained YAML that
+`load_run_config` reads back identically; `keys` lists every key (`detach-run keys`). The names
+only higher layers know (character, skills, reward terms, networks) are checked, and what they
+decide filled in, once, by `detach.train.run_config.resolve_run`.
 """
 
 from detach.config.loader import (

@@ -13,11 +13,10 @@ from pathlib import Path
 
 import torch
 
-from detach.config import resolve
 from detach.eval.episodes import run_evaluation
 from detach.runs.validation import validation_env, validation_seed
 from detach.skills import skill_names
-from detach.train.checks import complete_run_config
+from detach.train.run_config import resolve_run
 from detach.train.setup import apply_action_means, build_runner, load_initial_weights, seed_everything
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -30,8 +29,8 @@ FOLLOW = skill_names().index("follow")
 
 
 def stage_start(follow_run: str, *extra: str):
-    cfg = complete_run_config(resolve(ROOT / "configs/tasks/carry.yaml", "tokenhsi",
-                                      [*STAGE, f"train.init_from={follow_run}", *extra]))
+    cfg = resolve_run(ROOT / "configs/tasks/carry.yaml", "tokenhsi",
+                      [*STAGE, f"train.init_from={follow_run}", *extra])
     seed_everything(cfg.seed)
     _env, runner = build_runner(cfg, None, "cpu", progress=False)
     line = load_initial_weights(runner, cfg)
