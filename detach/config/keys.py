@@ -1,8 +1,8 @@
 """`detach-run keys [section]`: every config key with its type, default and doc.
 
-Generated from the dataclasses of `detach.config.schema` and the config classes of the
-registered model kinds (`detach.models.register_model`, installed add-ons included), so the list cannot drift from
-what the loader accepts. A field's doc is the string literal under it in the class body (the
+Generated from the dataclasses of `detach.config.schema` and the config classes of the model
+kinds (the built-ins', `detach.models.configs`, and installed add-ons'), so the list cannot drift
+from what the loader accepts. A field's doc is the string literal under it in the class body (the
 convention of this code base); a range is the field's own (`detach.config.ranges.ranged`).
 """
 
@@ -147,7 +147,7 @@ def model_kinds() -> dict[str, type[ModelCfg]]:
 
 def all_keys(sections: tuple[str, ...] | None = None) -> list[Key]:
     """Every key of a run configuration (or of `sections`), section by section (model: the
-    common fields, then each kind's own; listing those imports the networks, hence torch)."""
+    common fields, then each kind's own, from its config class; no network is imported)."""
     out: list[Key] = []
     for section, cls in SECTIONS.items():
         if sections is not None and section not in sections:

@@ -15,6 +15,7 @@ from typing import ClassVar, Literal
 
 from detach.config.schema import ModelCfg, kind_of, register_model_kind
 
+
 @dataclass(frozen=True)
 class TrunkModelCfg(ModelCfg):
     """Config of a model with a trunk the critic may share (every kind but the flat MLP)."""
