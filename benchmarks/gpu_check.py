@@ -50,10 +50,10 @@ CUDA_GRAPH = {"on": True}
 
 
 def _cfg(task: str, model: str, overrides: list[str]):
-    from detach import complete_run_config, resolve
+    from detach import resolve_run
 
     graph = f"sim.cuda_graph={'true' if CUDA_GRAPH['on'] else 'false'}"
-    return complete_run_config(resolve(TASKS / f"{task}.yaml", model, ["sim.backend=warp", graph, *overrides]))
+    return resolve_run(TASKS / f"{task}.yaml", model, ["sim.backend=warp", graph, *overrides])
 
 
 def raw_physics(ns: list[int], device: torch.device, seconds: float) -> list[dict]:

@@ -21,7 +21,7 @@ PUBLIC: dict[str, tuple[str, ...]] = {
     # configuration: load, merge, override, validate
     "detach.config": ("ConfigError", "RunConfig", "ModelCfg", "resolve", "dump", "load_task", "find_task_file",
                       "builtin_configs"),
-    "detach.config_keys": ("format_keys", "select"),
+    "detach.config.keys": ("format_keys", "select"),
     # running: what `detach-run` does, as functions
     "detach.runs.actions": ("RunOutcome", "train_config", "train_run", "resume", "evaluate", "export",
                             "play", "sweep"),
@@ -52,14 +52,11 @@ PUBLIC: dict[str, tuple[str, ...]] = {
     "detach.character.puppet": ("GRASP_ACTION",),
     # models
     "detach.models": ("StructuredModel", "register_model", "build_actor_critic", "paper_label"),
-    "detach.models.mlp": ("MLPCfg",),
-    "detach.models.detach_net": ("DetachCfg",),
-    "detach.models.tokenhsi": ("TokenHSICfg",),
-    "detach.models.cml": ("CMLCfg",),
+    "detach.models.configs": ("MLPCfg", "DetachCfg", "TokenHSICfg", "CMLCfg"),
     "detach.models.encoders": ("EnvEncoder",),
     "detach.models.layout": ("HISTORY_GROUPS", "ObsLayout"),
     # training pieces (what `train_run` puts together)
-    "detach.train.checks": ("complete_run_config",),
+    "detach.train.run_config": ("resolve_run", "complete_run_config"),
     "detach.train.setup": ("seed_everything", "apply_torch_threads", "prepare_assets", "build_runner",
                            "load_initial_weights", "apply_action_means", "merge_normalizers"),
     "detach.train.checkpoints": ("newest_readable_checkpoint",),
@@ -110,7 +107,7 @@ if TYPE_CHECKING:  # what type checkers and editors see; tests/test_architecture
     from detach.config import (
         ConfigError, ModelCfg, RunConfig, builtin_configs, dump, find_task_file, load_task, resolve,
     )
-    from detach.config_keys import format_keys, select
+    from detach.config.keys import format_keys, select
     from detach.envs import observations
     from detach.envs.lh_env import LHEnv, make_env
     from detach.envs.obs_spec import EXAMPLE_SPEC
@@ -121,12 +118,9 @@ if TYPE_CHECKING:  # what type checkers and editors see; tests/test_architecture
         Disc, Marker, PathMemo, Polyline, Sphere, TaskState, Text, task_markers, task_state,
     )
     from detach.models import StructuredModel, build_actor_critic, paper_label, register_model
-    from detach.models.cml import CMLCfg
-    from detach.models.detach_net import DetachCfg
+    from detach.models.configs import CMLCfg, DetachCfg, MLPCfg, TokenHSICfg
     from detach.models.encoders import EnvEncoder
     from detach.models.layout import HISTORY_GROUPS, ObsLayout
-    from detach.models.mlp import MLPCfg
-    from detach.models.tokenhsi import TokenHSICfg
     from detach.runfolder.folder import RunFolder, find_runs
     from detach.runfolder.log_tail import EpisodeKey, LogTail, closed_cleanly
     from detach.runfolder.mcap_reader import iter_messages, read_episodes, read_metrics
@@ -149,7 +143,7 @@ if TYPE_CHECKING:  # what type checkers and editors see; tests/test_architecture
     from detach.skills.trajectories import distance_to_polyline
     from detach.torch_math import point_box_distance, wrap_angle, yaw_of
     from detach.train.checkpoints import newest_readable_checkpoint
-    from detach.train.checks import complete_run_config
+    from detach.train.run_config import complete_run_config, resolve_run
     from detach.train.start_library import make_training_env
     from detach.train.setup import (
         apply_action_means, apply_torch_threads, build_runner, load_initial_weights, merge_normalizers,

@@ -370,7 +370,7 @@ def build_table_parser() -> argparse.ArgumentParser:
 
 def build_keys_parser() -> argparse.ArgumentParser:
     parser = _subparser("keys", "List every config key (override path, type, default, doc), read from the "
-                                "config dataclasses (detach/config_schema.py and each model kind's class).")
+                                "config dataclasses (detach/config/schema.py and each model kind's class).")
     parser.add_argument("section", nargs="?", default=None,
                         help="a section (task, sim, env, rewards, eval, model, train), a model kind "
                              "(model.detach, model.tokenhsi, ...) or a key prefix (train.amp); default: all")
@@ -495,7 +495,7 @@ def _table(args: argparse.Namespace) -> int:
 
 
 def _keys(args: argparse.Namespace) -> int:
-    from detach.config_keys import format_keys, select
+    from detach.config.keys import format_keys, select
 
     try:
         keys = select(args.section)

@@ -10,11 +10,11 @@ import argparse
 
 import torch
 
-from detach import complete_run_config, find_task_file, make_env, resolve
+from detach import find_task_file, make_env, resolve_run
 
 
 def main(steps: int = 30) -> None:
-    cfg = complete_run_config(resolve(find_task_file("follow"), "mlp", ["env.character=puppet"]))
+    cfg = resolve_run(find_task_file("follow"), "mlp", ["env.character=puppet"])
     env = make_env(cfg, num_envs=2, eval_mode=True)
     obs = env.get_observations()
     print({key: tuple(value.shape) for key, value in obs.items()})

@@ -9,7 +9,7 @@ its target and distance) with a default weight; the config sets any weight as
 
 import torch
 
-from detach import RewardTerm, SkillContext, complete_run_config, find_task_file, make_env, resolve, skill_class
+from detach import RewardTerm, SkillContext, find_task_file, make_env, resolve_run, skill_class
 
 
 def upright(ctx: SkillContext) -> torch.Tensor:
@@ -23,8 +23,8 @@ def main() -> None:
     follow = skill_class("follow")
     follow.reward_terms = {**follow.reward_terms, "upright": RewardTerm(upright, 0.1)}
     try:
-        cfg = complete_run_config(resolve(find_task_file("follow"), "mlp",
-                                          ["env.character=puppet", "+rewards.terms.follow/upright=0.2"]))
+        cfg = resolve_run(find_task_file("follow"), "mlp",
+                          ["env.character=puppet", "+rewards.terms.follow/upright=0.2"])
         env = make_env(cfg, num_envs=2, eval_mode=True)
         assert "follow/upright" in env.rewards.active
         _obs, reward, _dones, _extras = env.step(torch.zeros(env.num_envs, env.num_actions))

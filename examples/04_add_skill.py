@@ -15,8 +15,8 @@ from pathlib import Path
 import torch
 
 from detach import (
-    BODY_NAMES, Oracle, OracleCommand, RewardTerm, Skill, SkillContext, builtin_configs, complete_run_config, make_env,
-    register_skill, resolve, run_evaluation, unregister_skill,
+    BODY_NAMES, Oracle, OracleCommand, RewardTerm, Skill, SkillContext, builtin_configs, make_env, register_skill,
+    resolve_run, run_evaluation, unregister_skill,
 )
 
 RIGHT_HAND = BODY_NAMES.index("right_hand")
@@ -56,7 +56,7 @@ def main() -> None:
                 sample_target_from: [tarpos_0]
                 env: {{episode_length: 300}}
                 """))
-            cfg = complete_run_config(resolve(task, "mlp", ["env.character=puppet"]))
+            cfg = resolve_run(task, "mlp", ["env.character=puppet"])
             env = make_env(cfg, num_envs=2, eval_mode=True)
             oracle = Oracle(env)
             result = run_evaluation(env, lambda _obs: oracle(), trials=2, cfg=cfg, progress=False)

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from detach.config_schema import SceneObjectCfg, TaskCfg
+from detach.config.schema import SceneObjectCfg, TaskCfg
 from scene_builder import procedural
 from scene_builder.cache import read_config
 from scene_builder.errors import AssetError

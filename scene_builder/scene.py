@@ -28,7 +28,7 @@ import trimesh
 
 from detach.character import Character, add_character
 from detach.character.body import BODY_NAMES, DOF_NAMES, add_floor, configure_options
-from detach.config_schema import SimCfg, TaskCfg
+from detach.config.schema import SimCfg, TaskCfg
 from scene_builder.assets import AssetInfo, read_assets
 
 GROUP_FLOOR, GROUP_CHARACTER, GROUP_VISUAL, GROUP_COLLISION = 0, 1, 2, 3

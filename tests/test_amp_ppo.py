@@ -9,7 +9,7 @@ import torch
 from rsl_rl.models import MLPModel
 from rsl_rl.runners import OnPolicyRunner
 
-from detach.config_schema import AmpCfg
+from detach.config.schema import AmpCfg
 from detach.train.discriminator import AmpDiscriminator, ReplayBuffer
 from tests.fakes import PointMassEnv
 

@@ -11,14 +11,16 @@ from __future__ import annotations
 
 import ast
 import re
+import subprocess
+import sys
+import textwrap
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("detach", "scene_builder", "server")
 
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("config", ("detach.yaml_source", "detach.config_validate", "detach.config_schema", "detach.config_keys",
-                "detach.config", "detach.torch_math", "detach.host_sync")),
+    ("config", ("detach.config", "detach.torch_math", "detach.host_sync")),
     ("runfolder", ("detach.runfolder",)),
     ("assets", ("scene_builder",)),
     ("character", ("detach.character",)),
@@ -201,12 +203,14 @@ def _register_model_calls(path: Path) -> list[ast.Call]:
             and getattr(node.value.func, "id", None) == "register_model"]
 
 
-def test_every_built_in_model_kind_is_one_module_registered_through_register_model() -> None:
-    """A model kind is its config class, its trunk and its rsl-rl model in one module under
-    detach/models that registers it with `register_model`; every shipped model YAML's kind is
-    one and its name has a label there."""
+def test_every_built_in_model_kind_is_a_torch_free_config_and_one_registered_network() -> None:
+    """A built-in model kind is its config class in `detach.models.configs`, which imports only
+    the configuration layer (that layer reads it without torch), and its trunk and rsl-rl model
+    in one module under detach/models that registers it once with `register_model`, named in
+    `BUILTIN_NETWORKS`; every shipped model YAML's kind is one and its name has a label there."""
     from detach.config import load_merged
     from detach.models import model_order, registered_models
+    from detach.models.configs import BUILTIN_NETWORKS
 
     found = {name: len(_register_model_calls(path)) for name, path in modules().items()
              if name.startswith("detach.models.")}
@@ -214,15 +218,41 @@ def test_every_built_in_model_kind_is_one_module_registered_through_register_mod
     registering = sorted(name for name, n in found.items() if n == 1)
     entries = [e for e in registered_models() if e.network.__module__.startswith("detach.")]
     assert sorted(e.network.__module__ for e in entries) == registering
+    assert {e.config_class: e.network.__module__ for e in entries} == BUILTIN_NETWORKS
     for e in entries:
-        assert e.config_class.__module__ == e.network.__module__, e.kind
+        assert e.config_class.__module__ == "detach.models.configs", e.kind
         assert e.network.trunk_class.__module__ == e.network.__module__, e.kind
+    config_deps = graph()["detach.models.configs"]
+    assert all(layer_of(d) == 0 for d in config_deps), f"detach.models.configs imports {sorted(config_deps)}"
     kinds = {e.kind for e in entries}
     for path in (ROOT / "configs" / "models").glob("*.yaml"):
         kind = load_merged(path)[0]["model"]["kind"]
         assert kind in kinds, f"{path.name}: kind {kind!r} is not a built-in kind"
         assert path.stem in model_order(), f"{path.name}: no label registered with kind {kind}"
 
+
+
+def test_resolving_a_config_imports_no_torch() -> None:
+    """The configuration layer imports nothing above it, and the model kinds' config classes are
+    torch-free: in a fresh process, resolving the task with every shipped model YAML, reading
+    the dump back and listing the keys (`detach-run keys`) leave torch unimported."""
+    code = textwrap.dedent("""\
+        import sys, tempfile
+        from pathlib import Path
+        from detach.config import dump, load_run_config, resolve
+        from detach.config.keys import all_keys, format_keys
+        for model in sorted(p.stem for p in Path("configs/models").glob("*.yaml")):
+            cfg = resolve("configs/tasks/lh1.yaml", model)
+            with tempfile.NamedTemporaryFile("w", suffix=".yaml") as f:
+                f.write(dump(cfg))
+                f.flush()
+                assert load_run_config(f.name) == cfg, model
+        format_keys(all_keys())
+        print(sorted(m for m in sys.modules if m == "torch" or m.startswith(("torch.", "detach.models."))))
+        """)
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == "['detach.models.configs']", out.stdout
 
 def test_no_model_table_outside_the_registry() -> None:
     """The networks and their labels are registered with their kind: no module keeps a list of
@@ -413,7 +443,7 @@ CLI_MAX_LINES = 550
 """detach/cli.py is argparse definitions plus one call per command (835 lines with run logic)."""
 
 CLI_MAY_IMPORT = {"detach.config", "detach.eval.trial_sets", "detach.runs.actions", "detach.runs.command",
-                  "detach.runs.listing", "detach.runs.tables_cli", "detach.config_keys"}
+                  "detach.runs.listing", "detach.runs.tables_cli", "detach.config.keys"}
 """ConfigError and a flag's bound; the API; how a command ends; the read-only reports (list,
 table, keys). Anything else (run folders, sessions, jobs, training, sweeps) is run logic, which
 belongs to the API (`detach.runs.actions`), where a sweep's worker calls it too."""

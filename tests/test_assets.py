@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from detach.config_schema import SceneObjectCfg, TaskCfg
+from detach.config.schema import SceneObjectCfg, TaskCfg
 from scene_builder import procedural
 from scene_builder.assets import (AssetError, AssetInfo, default_assets_root, ensure_assets, load_asset,
                                   requests_from_task)

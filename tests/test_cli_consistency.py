@@ -14,8 +14,8 @@ import pytest
 
 from detach import cli
 from detach.config import ConfigError, builtin_configs, find_task_file
-from detach.config_keys import SECTIONS, all_keys, field_docs, select
-from detach.config_schema import SimCfg
+from detach.config.keys import SECTIONS, all_keys, field_docs, select
+from detach.config.schema import SimCfg
 
 ROOT = Path(__file__).resolve().parents[1]
 

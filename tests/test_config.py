@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import textwrap
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 
 from detach import cli
-from detach.config import ConfigError, dump, load_run_config, load_task, resolve
+from detach.config import ConfigError, ConfigOrigin, dump, load_run_config, load_task, resolve
+from detach.config.keys import all_keys
+from detach.config.ranges import AT_LEAST_1, check_ranges, ranged
 
 ROOT = Path(__file__).resolve().parents[1]
 TASKS = sorted((ROOT / "configs" / "tasks").glob("*.yaml"))
@@ -241,15 +244,14 @@ def test_unknown_model_suggests_closest(capsys: pytest.CaptureFixture[str]) -> N
 
 
 def test_action_std_defaults_to_the_characters_and_an_override_wins() -> None:
-    from detach.train.checks import complete_run_config
+    from detach.train.run_config import resolve_run
 
     follow = ROOT / "configs/tasks/follow.yaml"
     assert resolve(follow, "detach").model.init_noise_std is None  # null: the character's
-    assert complete_run_config(resolve(follow, "detach")).model.init_noise_std == 0.1
-    assert complete_run_config(resolve(follow, "mlp", ["env.character=puppet"])).model.init_noise_std == 1.0
-    assert complete_run_config(resolve(follow, "mlp", ["env.character=puppet", "model.init_noise_std=0.3"])
-                               ).model.init_noise_std == 0.3
-    dumped = dump(complete_run_config(resolve(follow, "tokenhsi")))
+    assert resolve_run(follow, "detach").model.init_noise_std == 0.1
+    assert resolve_run(follow, "mlp", ["env.character=puppet"]).model.init_noise_std == 1.0
+    assert resolve_run(follow, "mlp", ["env.character=puppet", "model.init_noise_std=0.3"]).model.init_noise_std == 0.3
+    dumped = dump(resolve_run(follow, "tokenhsi"))
     assert "init_noise_std: 0.1" in dumped  # config.yaml has the number
 
 
@@ -301,6 +303,31 @@ def test_values_out_of_range_name_their_file_and_line(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match=r"<command line>: seed: expected a value in \[0, 4294967295\], found -1"):
         resolve(ROOT / "configs/tasks/follow.yaml", "mlp", seed=-1)
 
+
+
+@dataclass(frozen=True)
+class _Inner:
+    n: int = ranged(1, AT_LEAST_1)
+
+
+@dataclass(frozen=True)
+class _Outer:
+    inner: _Inner = _Inner()
+    items: tuple[_Inner, ...] = ()
+
+
+def test_a_range_is_declared_on_its_field() -> None:
+    """Ranges are field metadata (`ranged`, no table of key paths): the check walks every
+    section, nested and listed ones too, and `detach-run keys` shows each range with its key."""
+    check_ranges(_Outer(items=(_Inner(), _Inner(2))), ConfigOrigin())
+    with pytest.raises(ConfigError, match=r"^<command line>: inner.n: expected a value >= 1, found 0$"):
+        check_ranges(_Outer(inner=_Inner(0)), ConfigOrigin())
+    with pytest.raises(ConfigError, match=r"^<command line>: items\[1\].n: expected a value >= 1, found -3$"):
+        check_ranges(_Outer(items=(_Inner(), _Inner(-3))), ConfigOrigin())
+    docs = {k.path: k.doc for k in all_keys()}
+    assert docs["sim.num_envs"].endswith("(range: in [1, 1048576])")
+    assert docs["train.amp.learning_rate"].endswith("(range: > 0)")
+    assert docs["eval.confidence"].endswith("(range: in (0, 1))")
 
 def test_checkpoint_retention_has_a_stated_default() -> None:
     keep = resolve(ROOT / "configs/tasks/follow.yaml", "mlp").train.keep_checkpoints

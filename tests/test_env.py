@@ -14,7 +14,7 @@ from tensordict import TensorDict
 from types import SimpleNamespace
 
 from detach.config import resolve
-from detach.config_schema import HumanoidCfg, TaskCfg
+from detach.config.schema import HumanoidCfg, TaskCfg
 from detach.envs.lh_env import make_env
 from detach.envs.oracle import Oracle, random_policy
 from detach.envs.rewards import RewardManager

@@ -6,7 +6,7 @@ import math
 
 import torch
 
-from detach.config_schema import TrajectoryGenCfg
+from detach.config.schema import TrajectoryGenCfg
 from detach.envs import observations as O
 from detach.torch_math import (
     heading_matrix, quat_axes_xz, quat_from_yaw, quat_mul, quat_rotate, quat_to_matrix, quat_to_tan_norm,

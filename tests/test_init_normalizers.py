@@ -17,9 +17,8 @@ import torch
 
 from detach import cli
 from detach.character.body import DOF_NAMES
-from detach.config import resolve
 from detach.runfolder.folder import find_runs
-from detach.train.checks import complete_run_config
+from detach.train.run_config import resolve_run
 from detach.train.setup import build_runner, load_initial_weights
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -39,8 +38,8 @@ def follow_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def _carry_inputs_after_init(follow_run: Path, model: str, policy: str) -> tuple[torch.Tensor, object]:
     """|normalised observation| of a fresh Carry env's first step, as the policy started
     from `follow_run` sees it, and the actor."""
-    cfg = complete_run_config(resolve(ROOT / "configs/tasks/carry.yaml", model,
-                                      TINY + [f"train.init_from={follow_run}", f"train.init_normalizers={policy}"]))
+    cfg = resolve_run(ROOT / "configs/tasks/carry.yaml", model,
+                      TINY + [f"train.init_from={follow_run}", f"train.init_normalizers={policy}"])
     env, runner = build_runner(cfg, None, "cpu", progress=False)
     print(load_initial_weights(runner, cfg))
     actor = runner.alg.actor
@@ -101,8 +100,8 @@ def test_a_later_stage_can_start_with_a_smaller_action_std(follow_run: Path, tmp
                                                           capsys: pytest.CaptureFixture[str]) -> None:
     """At the later stages' learning rate the std parameter never moves: the puppet kept
     Follow's std 1.0 through Carry, and its noise dropped every held box within steps."""
-    cfg = complete_run_config(resolve(ROOT / "configs/tasks/carry.yaml", "mlp", TINY + [
-        f"train.init_from={follow_run}", "train.init_action_std=0.3"]))
+    cfg = resolve_run(ROOT / "configs/tasks/carry.yaml", "mlp", TINY + [
+        f"train.init_from={follow_run}", "train.init_action_std=0.3"])
     env, runner = build_runner(cfg, None, "cpu", progress=False)
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # reading the std once warned of a tensor that requires grad
@@ -110,8 +109,8 @@ def test_a_later_stage_can_start_with_a_smaller_action_std(follow_run: Path, tmp
     assert "action std 1.00 -> 0.3" in line
     torch.testing.assert_close(runner.alg.actor.distribution.std_param,
                                torch.full((env.num_actions,), 0.3))
-    kept = complete_run_config(resolve(ROOT / "configs/tasks/carry.yaml", "mlp", TINY + [
-        f"train.init_from={follow_run}"]))
+    kept = resolve_run(ROOT / "configs/tasks/carry.yaml", "mlp", TINY + [
+        f"train.init_from={follow_run}"])
     _env, runner = build_runner(kept, None, "cpu", progress=False)
     load_initial_weights(runner, kept)
     assert float(runner.alg.actor.distribution.std_param.detach().min()) > 0.9  # the source's, kept
@@ -172,8 +171,8 @@ def test_a_later_stage_can_start_the_grasp_at_a_chosen_mean(follow_run: Path, tm
                          *TINY, "train.max_iterations=1", "--no-eval"]) == 0
         (run,) = find_runs(out)
         source = run.path
-    cfg = complete_run_config(resolve(ROOT / "configs/tasks/carry.yaml", model, TINY + [
-        f"train.init_from={source}", "train.init_action_mean={grasp: 0.1, height: -0.05, abdomen_y: 0.5}"]))
+    cfg = resolve_run(ROOT / "configs/tasks/carry.yaml", model, TINY + [
+        f"train.init_from={source}", "train.init_action_mean={grasp: 0.1, height: -0.05, abdomen_y: 0.5}"])
     env, runner = build_runner(cfg, None, "cpu", progress=False)
     layers = [m for m in runner.alg.actor.mlp.modules() if isinstance(m, torch.nn.Linear)]
     saved = torch.load(sorted((source / "checkpoints").glob("model_*.pt"))[-1], weights_only=True)
@@ -223,9 +222,9 @@ def test_a_stage_starts_from_the_choice_of_action_means_that_scores_best(
         return SimpleNamespace(lh_mean=SimpleNamespace(rate=rate))
 
     monkeypatch.setattr(validation, "run_evaluation", fake_evaluation)
-    cfg = complete_run_config(resolve(ROOT / "configs/tasks/carry.yaml", "mlp", TINY + [
+    cfg = resolve_run(ROOT / "configs/tasks/carry.yaml", "mlp", TINY + [
         f"train.init_from={follow_run}", "train.init_choice_trials=3",
-        "train.init_action_mean_choices=[{grasp: -0.5}, {grasp: 0.7, height: -0.1}, {grasp: 0.7}]"]))
+        "train.init_action_mean_choices=[{grasp: -0.5}, {grasp: 0.7, height: -0.1}, {grasp: 0.7}]"])
     _env, runner = build_runner(cfg, None, "cpu", progress=False)
     load_initial_weights(runner, cfg)
     actor = runner.alg.actor
@@ -264,9 +263,9 @@ def test_choices_of_action_means_run_through_the_cli_and_are_checked(
 def test_a_critic_warmup_trains_the_critic_alone_first(follow_run: Path) -> None:
     """`train.critic_warmup_iterations`: a stage started from another task's run fits its
     critic to the new rewards (at its own learning rate) before PPO moves the policy."""
-    cfg = complete_run_config(resolve(ROOT / "configs/tasks/carry.yaml", "mlp", TINY + [
+    cfg = resolve_run(ROOT / "configs/tasks/carry.yaml", "mlp", TINY + [
         f"train.init_from={follow_run}", "train.critic_warmup_iterations=1", "train.max_iterations=2",
-        "train.learning_rate=1.0e-5", "train.critic_warmup_learning_rate=1.0e-2"]))
+        "train.learning_rate=1.0e-5", "train.critic_warmup_learning_rate=1.0e-2"])
     _env, runner = build_runner(cfg, None, "cpu", progress=False)
     load_initial_weights(runner, cfg)
     alg = runner.alg

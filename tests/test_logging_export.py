@@ -23,7 +23,7 @@ from detach.runfolder.names import AGENT_PARAMS_FILE, PROVENANCE_FILE
 from detach.runfolder.folder import RunFolder, find_runs
 from detach.runfolder.mcap_reader import read_metrics
 from detach.train.checkpoints import load_module_weights, read_checkpoint, write_checkpoint
-from detach.train.checks import complete_run_config
+from detach.train.run_config import complete_run_config
 from detach.train.setup import default_action_std
 
 ROOT = Path(__file__).resolve().parents[1]

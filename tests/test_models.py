@@ -13,8 +13,8 @@ from rsl_rl.runners import OnPolicyRunner
 from rsl_rl.utils import resolve_class
 from tensordict import TensorDict
 
-from detach.config_schema import ModelCfg
-from detach.config_validate import to_plain
+from detach.config.schema import ModelCfg
+from detach.config.validate import to_plain
 from detach.envs.obs_spec import EXAMPLE_SPEC, ObsSpec
 from detach.models import DEFAULT_OBS_GROUPS, DetachModel, build_actor_critic, rsl_rl_model_cfgs
 from detach.models import losses as L

@@ -17,6 +17,7 @@ from detach.envs.obs_spec import ObsSpec
 from detach.models import build_actor_critic
 from detach.models.tokenhsi import TokenHSICfg
 from detach.skills import skill_class, skill_names
+from detach.train.run_config import resolve_run
 from detach.train.setup import build_runner
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -149,8 +150,8 @@ def test_a_base_checkpoint_loads_with_only_the_adapter_missing_and_acts_the_same
 
 
 def test_adapter_stage_config_errors_name_the_key() -> None:
-    with pytest.raises(ConfigError, match=r"model\.adapt_skills: unknown skill 'jump'"):
-        model_cfg("tokenhsi_adapt", "model.adapt_skills=[jump]")
+    with pytest.raises(ConfigError, match=r"model\.adapt_skills: unknown skill 'jump'"):  # when completed
+        resolve_run(ROOT / "configs/tasks/follow.yaml", "tokenhsi_adapt", ["model.adapt_skills=[jump]"])
     with pytest.raises(ConfigError, match=r"model\.adapt_skills: .*shared_trunk"):
         model_cfg("tokenhsi_adapt", "model.shared_trunk=true")
     assert model_cfg("tokenhsi_adapt", "model.adapt_skills=[traj]").adapt_skills == ("traj",)
@@ -190,14 +191,12 @@ def _carry_stage_from_follow(tmp_path: Path, *overrides: str):
     `train.init_from` with merged statistics): (actor, first Carry observation, log line)."""
     from detach import cli
     from detach.runfolder.folder import find_runs
-    from detach.train.checks import complete_run_config
     from detach.train.setup import load_initial_weights
     assert cli.main(["train", str(ROOT / "configs/tasks/follow.yaml"), "--model", "tokenhsi", "--runs",
                      str(tmp_path), "--no-eval", *TINY, "train.max_iterations=1"]) == 0
     (run,) = find_runs(tmp_path)
-    cfg = complete_run_config(resolve(ROOT / "configs/tasks/carry.yaml", "tokenhsi",
-                                      [*TINY, f"train.init_from={run.path}", "train.init_normalizers=merge",
-                                       *overrides]))
+    cfg = resolve_run(ROOT / "configs/tasks/carry.yaml", "tokenhsi",
+                      [*TINY, f"train.init_from={run.path}", "train.init_normalizers=merge", *overrides])
     env, runner = build_runner(cfg, None, "cpu", progress=False)
     line = load_initial_weights(runner, cfg)
     return runner.alg.actor, env.get_observations(), line

@@ -10,9 +10,8 @@ import pytest
 import torch
 
 from detach import cli
-from detach.config import resolve
 from detach.runfolder.folder import find_runs
-from detach.train.checks import complete_run_config
+from detach.train.run_config import resolve_run
 from detach.train.setup import build_runner, load_initial_weights
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -37,8 +36,8 @@ def test_an_init_export_is_small_and_starts_a_run_with_the_same_policy(tmp_path:
     halves = [k for k, v in state["actor_state_dict"].items() if v.dtype == torch.float16]
     assert halves and not any("normalizer" in k for k in halves)
 
-    cfg = complete_run_config(resolve(ROOT / "configs/tasks/follow.yaml", "mlp",
-                                      TINY + [f"train.init_from={target}", "train.init_normalizers=keep"]))
+    cfg = resolve_run(ROOT / "configs/tasks/follow.yaml", "mlp",
+                      TINY + [f"train.init_from={target}", "train.init_normalizers=keep"])
     env, runner = build_runner(cfg, None, "cpu", progress=False)
     line = load_initial_weights(runner, cfg)
     assert "model mlp (mlp)" in line, line  # named from the file, which has no run folder
@@ -51,8 +50,8 @@ def test_an_init_export_is_small_and_starts_a_run_with_the_same_policy(tmp_path:
 def test_the_first_run_preset_resolves_and_its_shipped_policy_fits_detach(monkeypatch: pytest.MonkeyPatch) -> None:
     assert SHIPPED.is_file() and SHIPPED.stat().st_size <= 10 * 2**20
     monkeypatch.chdir(ROOT)  # the preset names the file relative to the repository, as the README runs it
-    cfg = complete_run_config(resolve(ROOT / "configs/tasks/follow.yaml", "detach", ["sim.num_envs=2"],
-                                      presets=["first_run"]))
+    cfg = resolve_run(ROOT / "configs/tasks/follow.yaml", "detach", ["sim.num_envs=2"],
+                      presets=["first_run"])
     assert cfg.train.init_from and os.path.samefile(cfg.train.init_from, SHIPPED)
     assert cfg.train.learning_rate <= 1e-5 and cfg.env.character == "puppet"
     _env, runner = build_runner(cfg, None, "cpu", progress=False)

@@ -9,8 +9,7 @@ from pathlib import Path
 import pytest
 
 from detach import cli
-from detach.config import resolve
-from detach.train.checks import complete_run_config
+from detach.train.run_config import resolve_run
 from detach.train.runner import DetachRunner
 from detach.train.setup import build_runner
 
@@ -21,8 +20,8 @@ TINY = ["env.character=puppet", "sim.num_envs=8", "train.num_steps_per_env=4", "
 
 @pytest.mark.parametrize("spread", [True, False])
 def test_episodes_start_spread_over_their_length_unless_switched_off(spread: bool) -> None:
-    cfg = complete_run_config(resolve(ROOT / "configs/tasks/carry.yaml", "mlp",
-                                      TINY + [f"train.init_at_random_ep_len={str(spread).lower()}"]))
+    cfg = resolve_run(ROOT / "configs/tasks/carry.yaml", "mlp",
+                      TINY + [f"train.init_at_random_ep_len={str(spread).lower()}"])
     env, runner = build_runner(cfg, None, "cpu", progress=False)
     runner.learn(cfg.train.max_iterations, init_at_random_ep_len=cfg.train.init_at_random_ep_len)
     steps = env.episode_length_buf.tolist()
@@ -42,7 +41,7 @@ def test_a_resumed_run_spreads_its_fresh_episodes_too(tmp_path: Path) -> None:
     """A resumed run rebuilds its environments, all at step 0: unspread, every batch of the
     resumed run came from one phase of synchronised episodes again (a resumed Carry run's
     curves fell at the resume point and its episodes all ran to the limit together)."""
-    cfg = complete_run_config(resolve(ROOT / "configs/tasks/carry.yaml", "mlp", TINY))
+    cfg = resolve_run(ROOT / "configs/tasks/carry.yaml", "mlp", TINY)
     _env, first = build_runner(cfg, tmp_path, "cpu", progress=False)
     first.learn(1, init_at_random_ep_len=True)
     (checkpoint,) = tmp_path.glob("model_*.pt")

@@ -216,9 +216,9 @@ def _dead_pid() -> int:
 
 def test_a_run_killed_before_its_first_checkpoint_restarts_from_iteration_0(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from detach.train.checks import complete_run_config
+    from detach.train.run_config import resolve_run
 
-    run = RunFolder.create(tmp_path, complete_run_config(resolve(FOLLOW, "mlp", [*TINY, "train.max_iterations=1"])))
+    run = RunFolder.create(tmp_path, resolve_run(FOLLOW, "mlp", [*TINY, "train.max_iterations=1"]))
     run.set_state("running", iteration=0)
     status = json.loads(run.status_path.read_text())
     run.status_path.write_text(json.dumps({**status, "pid": _dead_pid()}))

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from detach import cli
-from detach.yaml_source import MAX_YAML_BYTES, ConfigError, load_yaml, parse_scalar
+from detach.config.yaml_source import MAX_YAML_BYTES, ConfigError, load_yaml, parse_scalar
 from tests.test_runner_cli import FOLLOW, TINY
 
 

@@ -15,7 +15,7 @@ import yaml
 
 from detach import cli
 from detach.config import resolve
-from detach.config_schema import StagesCfg
+from detach.config.schema import StagesCfg
 from detach.runfolder.folder import RunFolder
 from detach.runs.provenance import code_change_since, git_state
 from detach.train.schedule import extend_schedule, stage_at, stage_lengths
@@ -44,10 +44,12 @@ def test_training_longer_extends_the_last_stage(detach_run: RunFolder, monkeypat
                                                 capsys: pytest.CaptureFixture[str]) -> None:
     assert cli.main(["--resume", str(detach_run.path), "train.max_iterations=40", "--dry-run"]) == 0
     assert _stages_printed(capsys) == {"pretrain": 2, "fusion": 8, "joint": 30}
-    monkeypatch.setattr("detach.runs.session.train_and_evaluate", lambda *_a, **_k: None)
+    trained = []
+    monkeypatch.setattr("detach.runs.session.train_and_evaluate", lambda _run, cfg, **_k: trained.append(cfg))
     assert cli.main(["--resume", str(detach_run.path), "train.max_iterations=40"]) == 0
     cfg = detach_run.config()
     assert cfg.train.max_iterations == 40 and cfg.train.stages == StagesCfg(2, 8, 30)
+    assert trained == [cfg], "the session trains the config it wrote, from memory"
     assert stage_lengths(cfg.train.stages, 40) == [("pretrain", 2), ("fusion", 8), ("joint", 30)]
     assert cli.main(["--resume", str(detach_run.path), "train.max_iterations=50"]) == 0
     assert detach_run.config().train.stages == StagesCfg(2, 8, 40)

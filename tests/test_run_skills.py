@@ -11,10 +11,10 @@ from pathlib import Path
 import pytest
 import yaml
 
-from detach.config import load_run_config, resolve
+from detach.config import load_run_config
 from detach.envs.lh_env import make_env
 from detach.skills import DEFAULT_RUN_SKILLS, register_skill, run_skills, skill_names, unregister_skill
-from detach.train.checks import complete_run_config
+from detach.train.run_config import resolve_run
 from detach.train.setup import build_runner, load_initial_weights
 from tests.test_skill_plugin import Reach
 
@@ -32,7 +32,7 @@ def reach_registered():
 
 def test_an_add_on_skill_leaves_a_new_runs_observation_size_alone(reach_registered: None) -> None:
     assert "reach" in skill_names()
-    cfg = complete_run_config(resolve(ROOT / "configs/tasks/follow.yaml", "mlp", ["env.character=puppet"]))
+    cfg = resolve_run(ROOT / "configs/tasks/follow.yaml", "mlp", ["env.character=puppet"])
     assert cfg.env.skills == DEFAULT_RUN_SKILLS == ("follow", "carry", "climb", "sit")
     env = make_env(cfg, num_envs=2, eval_mode=True, verbose=False)
     assert env.obs_spec.num_skills == 4 and env.obs_spec.skills == DEFAULT_RUN_SKILLS
@@ -49,8 +49,8 @@ def test_a_run_recorded_without_the_key_keeps_its_sizes_and_its_checkpoint_fits(
     assert env.skills == DEFAULT_RUN_SKILLS and env.obs_spec.num_skills == 4
 
     monkeypatch.chdir(ROOT)  # the shipped policy of pretrained/, trained before the key, loads
-    cfg = complete_run_config(resolve(ROOT / "configs/tasks/follow.yaml", "detach", ["sim.num_envs=2"],
-                                      presets=["first_run"]))
+    cfg = resolve_run(ROOT / "configs/tasks/follow.yaml", "detach", ["sim.num_envs=2"],
+                      presets=["first_run"])
     assert cfg.env.skills == DEFAULT_RUN_SKILLS and os.path.isfile(cfg.train.init_from)
     _env, runner = build_runner(cfg, None, "cpu", progress=False)
     assert "model detach (detach), iteration 399" in load_initial_weights(runner, cfg)
@@ -62,7 +62,7 @@ def test_a_listed_skill_list_orders_the_one_hot(reach_registered: None) -> None:
     with pytest.raises(ValueError, match="the plan uses carry, which the list"):
         run_skills(["follow"], ["follow", "carry"])
     task = ROOT / "configs/tasks/follow.yaml"
-    cfg = complete_run_config(resolve(task, "mlp", ["env.character=puppet", "env.skills=[reach,follow]"]))
+    cfg = resolve_run(task, "mlp", ["env.character=puppet", "env.skills=[reach,follow]"])
     env = make_env(cfg, num_envs=2, eval_mode=True, verbose=False)
     assert env.obs_spec.num_skills == 2 and env.get_observations()["task"][0].tolist() == [0, 1]
 
@@ -71,4 +71,4 @@ def test_an_unknown_skill_in_the_list_names_the_key() -> None:
     from detach.config import ConfigError
 
     with pytest.raises(ConfigError, match=r"env\.skills: unknown skill 'jump'"):
-        complete_run_config(resolve(ROOT / "configs/tasks/follow.yaml", "mlp", ["env.skills=[follow,jump]"]))
+        resolve_run(ROOT / "configs/tasks/follow.yaml", "mlp", ["env.skills=[follow,jump]"])

@@ -32,10 +32,14 @@ def _only_run(out: Path) -> RunFolder:
     return runs[0]
 
 
-def test_finished_run_leaves_the_contracted_files(tmp_path: Path) -> None:
+def test_finished_run_leaves_the_contracted_files(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    reads: list[Path] = []
+    read = RunFolder.config
+    monkeypatch.setattr(RunFolder, "config", lambda self: reads.append(self.path) or read(self))
     code = cli.main([FOLLOW, "--model", "mlp", "--out", str(tmp_path), "--trials", "2",
                      "train.max_iterations=2", *TINY])
     assert code == 0
+    assert reads == [], "trained and evaluated from the config in memory: config.yaml is not read back"
     run = _only_run(tmp_path)
     assert run.path.name.endswith("-follow-mlp-s0")
     status = run.status()

@@ -11,7 +11,7 @@ import pytest
 import trimesh
 
 from detach.character import make_character
-from detach.config_schema import SceneObjectCfg, SimCfg, TaskCfg
+from detach.config.schema import SceneObjectCfg, SimCfg, TaskCfg
 from scene_builder.assets import load_asset
 from scene_builder.scene import compile_scene
 

@@ -22,7 +22,7 @@ from detach.runfolder.eval_result import EvalResult
 from detach.runfolder.messages import SceneMessage
 from detach.skills import RewardTerm, Skill, register_skill, skill_names, unregister_skill
 from detach.skills.context import OracleCommand, SkillContext
-from detach.train.checks import complete_run_config
+from detach.train.run_config import resolve_run
 
 RIGHT_HAND = BODY_NAMES.index("right_hand")
 
@@ -76,7 +76,7 @@ def reach_task(tmp_path: Path):
 
 def test_a_skill_defined_in_a_test_runs_end_to_end(reach_task: Path) -> None:
     assert skill_names()[-1] == "reach" and skill_names()[:4] == ("follow", "carry", "climb", "sit")
-    cfg = complete_run_config(resolve(reach_task, "mlp", ["env.character=puppet"]))
+    cfg = resolve_run(reach_task, "mlp", ["env.character=puppet"])
     env = make_env(cfg, num_envs=2, eval_mode=True, verbose=False)
     assert env.obs_spec.num_skills == 5 and env.get_observations()["task"][0].tolist() == [0, 0, 0, 0, 1]
     assert "reach/hand_close" in env.rewards.active
@@ -112,4 +112,4 @@ def test_an_unknown_skill_in_a_task_names_file_line_and_the_skills(tmp_path: Pat
     base = Path(__file__).resolve().parents[1] / "configs" / "tasks" / "follow.yaml"
     task.write_text(f"extends: {base}\nplan: [reach]\n")
     with pytest.raises(ConfigError, match=r"bad.yaml:2: plan\[0\]: unknown skill 'reach'; available: follow"):
-        complete_run_config(resolve(task, "mlp"))
+        resolve_run(task, "mlp")

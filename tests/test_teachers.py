@@ -9,10 +9,9 @@ import pytest
 import torch
 
 from detach import cli
-from detach.config import resolve
 from detach.runfolder.folder import find_runs
 from detach.runfolder.mcap_reader import read_metrics
-from detach.train.checks import complete_run_config
+from detach.train.run_config import complete_run_config, resolve_run
 from detach.train.setup import build_runner
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -62,7 +61,7 @@ def test_teacher_only_distils_without_a_ppo_update(teacher_run: Path, tmp_path: 
 
 def test_a_skill_without_steps_in_the_batch_adds_nothing(teacher_run: Path) -> None:
     """A Carry teacher in a Follow run: no step is Carry's, so the loss is 0 and moves nothing."""
-    cfg = complete_run_config(resolve(FOLLOW, "mlp", TINY + [f"+train.teachers.carry={teacher_run}"]))
+    cfg = resolve_run(FOLLOW, "mlp", TINY + [f"+train.teachers.carry={teacher_run}"])
     env, runner = build_runner(cfg, None, "cpu", progress=False)
     loss, logs = runner.alg.policy_loss_fn(env.get_observations())
     assert float(loss.detach()) == 0.0 and logs["teacher/carry/share"] == 0.0
@@ -74,8 +73,8 @@ def test_a_policy_teaching_two_skills_is_loaded_once(teacher_run: Path) -> None:
     """Follow and Carry from the same run (the preservation case): one actor, both skills."""
     from detach.train.teachers import load_teachers
 
-    cfg = complete_run_config(resolve(FOLLOW, "mlp", TINY + [f"+train.teachers.follow={teacher_run}",
-                                                             f"+train.teachers.carry={teacher_run}"]))
+    cfg = resolve_run(FOLLOW, "mlp", TINY + [f"+train.teachers.follow={teacher_run}",
+                                                             f"+train.teachers.carry={teacher_run}"])
     env, runner = build_runner(cfg, None, "cpu", progress=False)
     teachers = load_teachers(cfg, env, "cpu")
     assert len(teachers.actors) == 1 and teachers.skills == [["follow", "carry"]]
@@ -98,7 +97,7 @@ def test_the_oracle_teaches_on_the_students_states(tmp_path: Path) -> None:
 def test_the_oracle_group_is_the_oracles_action_in_the_state_observed() -> None:
     from detach.envs.oracle import ORACLE_GROUP, Oracle
 
-    cfg = complete_run_config(resolve(FOLLOW, "mlp", TINY + ["+train.teachers.follow=oracle"]))
+    cfg = resolve_run(FOLLOW, "mlp", TINY + ["+train.teachers.follow=oracle"])
     env, _runner = build_runner(cfg, None, "cpu", progress=False)
     gen = torch.Generator().manual_seed(0)
     for _ in range(3):
@@ -146,7 +145,7 @@ def test_a_policy_pinned_beyond_an_action_bound_is_pulled_back() -> None:
     within the bound on the rollout's states."""
     from detach.character.puppet import NUM_ACTIONS
 
-    cfg = complete_run_config(resolve(FOLLOW, "mlp", TINY + ["train.action_bound_coef=10", "train.learning_rate=1e-3"]))
+    cfg = resolve_run(FOLLOW, "mlp", TINY + ["train.action_bound_coef=10", "train.learning_rate=1e-3"])
     env, runner = build_runner(cfg, None, "cpu", progress=False)
     alg = runner.alg
     bias = [p for name, p in alg.actor.named_parameters() if name.endswith("bias") and p.shape == (NUM_ACTIONS,)][-1]
@@ -182,8 +181,8 @@ def test_a_teacher_is_recorded_as_the_checkpoint_it_resolved_to(teacher_run: Pat
     teacher (before, config.yaml held the text as given, and a resume chose the teacher's
     newest checkpoint anew)."""
     monkeypatch.chdir(teacher_run.parent)
-    cfg = complete_run_config(resolve(FOLLOW, "mlp", TINY + [f"+train.teachers.follow={teacher_run.name}",
-                                                             "+train.teachers.sit=oracle"]))
+    cfg = resolve_run(FOLLOW, "mlp", TINY + [f"+train.teachers.follow={teacher_run.name}",
+                                                             "+train.teachers.sit=oracle"])
     recorded = Path(cfg.train.teachers["follow"])
     assert recorded.is_absolute() and recorded == (teacher_run / "checkpoints" / "model_0.pt").resolve()
     assert cfg.train.teachers["sit"] == "oracle"

@@ -80,7 +80,7 @@ def test_sigterm_checkpoints_then_stops(tmp_path: Path) -> None:
     (7, [("pretrain", 1), ("fusion", 3), ("joint", 3)]),
 ])
 def test_stage_schedule_scales_and_keeps_every_stage(total, expected) -> None:
-    from detach.config_schema import StagesCfg
+    from detach.config.schema import StagesCfg
     from detach.train.schedule import stage_at, stage_lengths
 
     schedule = stage_lengths(StagesCfg(100, 400, 500), total)

@@ -12,7 +12,7 @@ import pytest
 import torch
 from tensordict import TensorDict
 
-from detach.config_schema import AmpCfg
+from detach.config.schema import AmpCfg
 from detach.envs.obs_spec import ObsSpec
 from detach.models import DEFAULT_OBS_GROUPS, rsl_rl_model_cfgs
 from detach.models.detach_net import DetachCfg

@@ -16,7 +16,7 @@ import torch
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
-from detach.config_schema import RunConfig
+from detach.config.schema import RunConfig
 from detach.envs.observations import ObservationBuilder
 from detach.envs.oracle import ORACLE_GROUP, Oracle
 from detach.envs.plan_tracker import PlanTracker
@@ -47,7 +47,7 @@ class LHEnv(VecEnv):
         self.num_envs = int(num_envs or (cfg.eval.num_envs if eval_mode else sc.num_envs))
         self.gen = torch.Generator(device=self.device).manual_seed(int(cfg.seed if seed is None else seed))
         """Every random draw of task logic, on the env's device (no host round trip on a GPU)."""
-        self.plan = compile_plan(cfg.task)  # checked with file and line before: detach.train.checks
+        self.plan = compile_plan(cfg.task)  # checked with file and line before: detach.train.run_config
         self.skills = run_skills(ec.skills, [sub.skill for sub in self.plan])  # one-hot and skill-id order
         self.world = world = World.build(cfg, sc, self.num_envs, self.device, assets, assets_root)
         self.character, self.model, self.scene, self.backend = world.character, world.model, world.scene, world.backend

@@ -36,7 +36,7 @@ import math
 import torch
 from tensordict import TensorDict
 
-from detach.config_schema import EnvCfg
+from detach.config.schema import EnvCfg
 from detach.envs.obs_spec import ObsSpec
 from detach.host_sync import may_any, reads_are_free
 from detach.sim.raster import Raster

@@ -28,7 +28,7 @@ import torch
 
 from detach.character import Character
 from detach.character.body import NUM_DOF, START_HEIGHT, dof_ranges
-from detach.config_schema import RunConfig
+from detach.config.schema import RunConfig
 from detach.host_sync import to_device_async
 from detach.skills import MidTaskStart, Skill
 from detach.torch_math import quat_conj, quat_from_yaw, quat_mul, yaw_of

@@ -26,7 +26,7 @@ from typing import Callable, Sequence
 
 import torch
 
-from detach.config_schema import RewardsCfg
+from detach.config.schema import RewardsCfg
 from detach.host_sync import may_any
 from detach.skills import canonical_name, run_skills, skill_class, skill_names
 from detach.skills.base import Subtask
@@ -50,7 +50,7 @@ def canonical_term(name: str) -> str:
 
 def check_reward_terms(cfg: RewardsCfg) -> dict[str, float]:
     """The weight of every registered term, `rewards.terms` applied; ValueError on a name that
-    is no registered term (`detach.train.checks` reports it with file and line)."""
+    is no registered term (`detach.train.run_config` reports it with file and line)."""
     terms = registered_terms()
     weights = {canonical_term(k): float(v) for k, v in cfg.terms.items()}
     unknown = sorted(set(weights) - set(terms))

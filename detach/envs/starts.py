@@ -17,7 +17,7 @@ from typing import Callable
 
 import torch
 
-from detach.config_schema import RunConfig
+from detach.config.schema import RunConfig
 from detach.envs.resets import ResetSampler
 from detach.envs.subtask_starts import SubtaskStarts
 from detach.envs.world import World

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import torch
 
-from detach.config_schema import EnvCfg
+from detach.config.schema import EnvCfg
 from detach.skills import Skill, skill_class, skill_names
 from detach.skills.context import SkillContext
 

@@ -14,7 +14,7 @@ import mujoco
 import torch
 
 from detach.character import Character, MovableObject, make_character
-from detach.config_schema import RunConfig, SimCfg
+from detach.config.schema import RunConfig, SimCfg
 from detach.sim import PhysicsBackend, make_backend
 from detach.sim.raster import Raster
 from detach.sim.state import SceneIndex, SimState, read_state

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import Iterable
 
-from detach.config_schema import RunConfig
+from detach.config.schema import RunConfig
 from detach.skills import skill_class, skill_names
 
 ORACLE = "oracle"

@@ -15,7 +15,7 @@ import torch
 from tensordict import TensorDict
 from tqdm import tqdm
 
-from detach.config_schema import RunConfig
+from detach.config.schema import RunConfig
 from detach.eval.report import TrialOutcome, summarize
 from detach.eval.scene import scene_message
 from detach.runfolder.eval_result import EvalResult

@@ -8,7 +8,7 @@ import mujoco
 import numpy as np
 
 from detach.character.body import BODY_NAMES
-from detach.config_schema import RunConfig
+from detach.config.schema import RunConfig
 from detach.runfolder.messages import BodyGeom, SceneMessage, SceneObject, SceneTarget
 from detach.skills import skill_class
 

@@ -1,36 +1,50 @@
 """Networks of the study (DETACH, its ablations, TokenHSI, CML, MLP) as rsl-rl actor/critic models.
 
-One module per model kind (config, trunk, rsl-rl model), each registering itself with
-`register_model`; they are imported here in the tables' row order. Entry points:
+One module per model kind's network (trunk, rsl-rl model), each registering itself with
+`register_model`; the kinds' config classes are in `detach.models.configs`, which imports no
+torch. Importing this package imports no network either: the configuration layer reads the
+config classes through it, so each name below is imported when first used. Entry points:
 `factory.rsl_rl_model_cfgs` (train_cfg entries) and `factory.build_actor_critic`.
 """
 
-from detach.models.mlp import MLPBaselineModel  # noqa: I001 (import order = registration order)
-from detach.models.cml import CMLModel
-from detach.models.tokenhsi import TokenHSIModel
-from detach.models.detach_net import DetachModel
-from detach.models.factory import DEFAULT_OBS_GROUPS, build_actor_critic, rsl_rl_model_cfgs
-from detach.models.registry import (
-    ModelEntry, model_class, model_label, model_order, paper_label, register_model, registered_models,
-    unregister_model,
-)
-from detach.models.structured import StructuredModel
+from __future__ import annotations
 
-__all__ = [
-    "DEFAULT_OBS_GROUPS",
-    "CMLModel",
-    "DetachModel",
-    "MLPBaselineModel",
-    "ModelEntry",
-    "StructuredModel",
-    "TokenHSIModel",
-    "build_actor_critic",
-    "model_class",
-    "model_label",
-    "model_order",
-    "paper_label",
-    "register_model",
-    "registered_models",
-    "rsl_rl_model_cfgs",
-    "unregister_model",
-]
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from detach.models.cml import CMLModel
+    from detach.models.detach_net import DetachModel
+    from detach.models.factory import DEFAULT_OBS_GROUPS, build_actor_critic, rsl_rl_model_cfgs
+    from detach.models.mlp import MLPBaselineModel
+    from detach.models.registry import (
+        ModelEntry, model_class, model_label, model_order, paper_label, register_model, registered_models,
+        unregister_model,
+    )
+    from detach.models.structured import StructuredModel
+    from detach.models.tokenhsi import TokenHSIModel
+
+_EXPORTS: dict[str, str] = {
+    "DEFAULT_OBS_GROUPS": "factory", "build_actor_critic": "factory", "rsl_rl_model_cfgs": "factory",
+    "CMLModel": "cml", "DetachModel": "detach_net", "MLPBaselineModel": "mlp", "TokenHSIModel": "tokenhsi",
+    "StructuredModel": "structured", "ModelEntry": "registry", "model_class": "registry", "model_label": "registry",
+    "model_order": "registry", "paper_label": "registry", "register_model": "registry",
+    "registered_models": "registry", "unregister_model": "registry",
+}
+"""Public name -> the module of this package that defines it."""
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    """Import a public name's module on first use (PEP 562)."""
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_EXPORTS})

@@ -1,5 +1,5 @@
 """CML (Xu et al. 2023, "Composite Motion Learning with Task Control") as this platform runs it
-(kind `cml`: config, trunk, rsl-rl model).
+(kind `cml`, config `configs.CMLCfg`: trunk, rsl-rl model).
 
 Network: a GRU encodes the observation history; its last hidden state, the task one-hot and any
 extra flat group (the privileged `critic` group) form the latent of the MLP head ([1024, 512],
@@ -21,7 +21,6 @@ the new skills by mixing its own action with the meta action per action dimensio
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import torch
@@ -29,28 +28,10 @@ import torch.nn as nn
 from rsl_rl.modules import MLP, EmpiricalNormalization
 from tensordict import TensorDict
 
-from detach.models.layout import ObsLayout, TrunkModelCfg, align_time, no_columns, stack_columns
+from detach.models.configs import CMLCfg
+from detach.models.layout import ObsLayout, align_time, no_columns, stack_columns
 from detach.models.registry import register_model
 from detach.models.structured import StructuredModel
-
-
-@dataclass(frozen=True)
-class CMLCfg(TrunkModelCfg):
-    """The CML baseline (kind `cml`)."""
-
-    kind: str = "cml"
-    gru_hidden: int = 256
-    incremental: bool = False
-    """The policy is a frozen meta policy (this network, weights from `train.init_from`) plus a
-    trainable cooperative policy that mixes its action in per action dimension."""
-
-    def builds_on(self) -> str | None:
-        return "incremental" if self.incremental else None
-
-    def invalid(self) -> tuple[str, str] | None:
-        if self.incremental and self.shared_trunk:
-            return "incremental", "the meta policy is frozen; a critic cannot share its trunk (shared_trunk)"
-        return None
 
 
 class CMLTrunk(nn.Module):

@@ -1,5 +1,5 @@
-"""DETACH (kind `detach`, with its ablations A1/A2): config, trunk (dual encoders -> projections ->
-adaptive fusion -> shared transformer φ) and rsl-rl model.
+"""DETACH (kind `detach`, with its ablations A1/A2; config `configs.DetachCfg`): trunk (dual
+encoders -> projections -> adaptive fusion -> shared transformer φ) and rsl-rl model.
 
 Tokens of φ (our choice; the paper only says φ(f_fused)): one fused token per self-history step
 (T_self tokens, f_fused[t] = fusion of f_self[t] with the env sequence) + one task token
@@ -19,7 +19,6 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass
 from itertools import chain
-from typing import ClassVar
 
 import torch
 import torch.nn as nn
@@ -27,35 +26,13 @@ from tensordict import TensorDict
 
 from detach.models import losses
 from detach.models.attention import TransformerEncoder
-from detach.models.encoders import (
-    EnvEncoder, EnvEncoderCfg, FrameDecoder, SelfEncoder, SelfEncoderCfg, TemporalPredictor,
-)
-from detach.models.fusion import AdaptiveFusion, FusionCfg, FusionOutput
-from detach.models.layout import ObsLayout, TrunkModelCfg, no_columns
-from detach.models.losses import RegularizerCfg, combine_aux_losses
+from detach.models.configs import DetachCfg, RegularizerCfg
+from detach.models.encoders import EnvEncoder, FrameDecoder, SelfEncoder, TemporalPredictor
+from detach.models.fusion import AdaptiveFusion, FusionOutput
+from detach.models.layout import ObsLayout, no_columns
+from detach.models.losses import combine_aux_losses
 from detach.models.registry import register_model
 from detach.models.structured import StructuredModel
-
-
-@dataclass(frozen=True)
-class DetachCfg(TrunkModelCfg):
-    """DETACH and its ablations A1/A2 (kind `detach`)."""
-
-    kind: str = "detach"
-    d_model: int = 64
-    num_layers: int = 4
-    num_heads: int = 8
-    ff_dim: int = 256
-    use_env_encoder: bool = True
-    """False = ablation A1 (env frames through a linear projection)."""
-    use_self_encoder: bool = True
-    """False = ablation A2 (self frames through a linear projection)."""
-    env_encoder: EnvEncoderCfg = EnvEncoderCfg()
-    self_encoder: SelfEncoderCfg = SelfEncoderCfg()
-    fusion: FusionCfg = FusionCfg()
-    regularizers: RegularizerCfg = RegularizerCfg()
-
-    staged: ClassVar[bool] = True
 
 
 class ParamAnchor(nn.Module):

@@ -11,33 +11,13 @@ All sequences are [N, T, features], step 0 the oldest.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 import torch.nn as nn
 from rsl_rl.modules import MLP
 from rsl_rl.utils import resolve_nn_activation
 
 from detach.models.attention import MultiHeadAttention
-
-
-@dataclass(frozen=True)
-class EnvEncoderCfg:
-    kernel_sizes: tuple[int, ...] = (1, 3, 5)
-    channels: int = 64
-    attn_heads: int = 4
-    decoder_hidden: int = 256
-    """Hidden width of Decoder_env (per-frame MLP z_env[t] -> env frame)."""
-
-
-@dataclass(frozen=True)
-class SelfEncoderCfg:
-    hidden: int = 64
-    layers: int = 1
-    decoder_hidden: int = 256
-    """Hidden width of Decoder_self (per-frame MLP z_self[t] -> self frame)."""
-    predictor_hidden: int = 128
-    """Hidden width of the temporal predictor f_pred."""
+from detach.models.configs import EnvEncoderCfg, SelfEncoderCfg
 
 
 class EnvEncoder(nn.Module):

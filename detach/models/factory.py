@@ -12,7 +12,7 @@ from __future__ import annotations
 from rsl_rl.utils import resolve_class
 from tensordict import TensorDict
 
-from detach.config_schema import ModelCfg
+from detach.config.schema import ModelCfg
 from detach.envs.obs_spec import ObsSpec
 from detach.models.registry import model_class
 from detach.models.structured import StructuredModel, link_shared_trunk

@@ -17,15 +17,8 @@ import torch.nn as nn
 from rsl_rl.modules import MLP
 
 from detach.models.attention import MultiHeadAttention
+from detach.models.configs import FusionCfg
 from detach.models.layout import align_time
-
-
-@dataclass(frozen=True)
-class FusionCfg:
-    cross_attn_heads: int = 8
-    gate_hidden: tuple[int, ...] = (128, 64)
-    num_experts: int = 4
-    expert_hidden: tuple[int, ...] = (128, 64)
 
 
 class CrossAttentionFusion(nn.Module):

@@ -15,19 +15,9 @@ import torch
 import torch.nn.functional as F
 from tensordict import TensorDict
 
-from detach.config_schema import ModelCfg
 from detach.envs.obs_spec import ObsSpec
 
 HISTORY_GROUPS: tuple[str, ...] = ("self", "env")
-
-
-@dataclass(frozen=True)
-class TrunkModelCfg(ModelCfg):
-    """Config of a model with a trunk the critic may share (every kind but the flat MLP)."""
-
-    shared_trunk: bool = False
-    """The critic reads the actor's trunk: its value head sees [h; privileged groups] (the
-    paper's V(s) = ValueHead(h_transformer)), so one trunk is trained and run per update."""
 
 
 @dataclass(frozen=True)

@@ -10,34 +10,11 @@ preservation (R1, R2) is a plain sum of squared differences, as printed.
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
-from typing import Literal
 
 import torch
 import torch.nn.functional as F
 
-
-@dataclass(frozen=True)
-class RegularizerCfg:
-    """Weights of DETACH's auxiliary losses (the paper gives no values; see detach.yaml)."""
-
-    lambda_quality: float = 0.1
-    lambda_disentangle: float = 0.01
-    lambda_r1: float = 0.01
-    lambda_r2: float = 0.01
-    lambda_r3: float = 0.001
-    lambda_temporal: float = 0.001
-    lambda_semantic: float = 0.01
-    lambda_decouple: float = 0.01
-    """Weight of R_decouple = ||Corr(z_env, z_self)||_F^2 in the joint stage."""
-    semantic_env_weight: float = 1.0
-    """alpha of R_semantic (env reconstruction term)."""
-    semantic_self_weight: float = 1.0
-    """beta of R_semantic (self reconstruction term)."""
-    r3_mode: Literal["distance", "cosine"] = "distance"
-    """R3 as printed in the paper (sum of squared distances between fusion outputs, which
-    pulls them together) or `cosine` (mean squared cosine similarity, which pushes them apart,
-    the stated intent "fusion diversity")."""
+from detach.models.configs import RegularizerCfg
 
 STAGES: tuple[str, ...] = ("pretrain", "fusion", "joint")
 

@@ -1,5 +1,5 @@
-"""The MLP baseline (kind `mlp`): its config, its trunk (the normalised groups, flattened and
-concatenated, rsl-rl's MLPModel input) and its rsl-rl model.
+"""The MLP baseline (kind `mlp`, config `configs.MLPCfg`): its trunk (the normalised groups,
+flattened and concatenated, rsl-rl's MLPModel input) and its rsl-rl model.
 
 The head MLP ([1024, 512] via `adapter_units`) does all the work; this trunk exists so the
 baseline shares the group handling and the multi-head critic of the other kinds. With
@@ -10,29 +10,13 @@ benchmarks/RESULTS.md: 5 frames -> 1 frame, 3.3 -> 1.97 s per PPO iteration on t
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 import torch.nn as nn
 
-from detach.config_schema import ModelCfg
+from detach.models.configs import MLPCfg
 from detach.models.layout import HISTORY_GROUPS, ObsLayout
 from detach.models.registry import register_model
 from detach.models.structured import StructuredModel
-
-
-@dataclass(frozen=True)
-class MLPCfg(ModelCfg):
-    """The flat MLP baseline (kind `mlp`)."""
-
-    kind: str = "mlp"
-    history_frames: int = 0
-    """The newest frames of each history group the network reads (0 = all T)."""
-
-    def invalid(self) -> tuple[str, str] | None:
-        if self.history_frames < 0:
-            return "history_frames", f"expected >= 0 (0 = every frame), found {self.history_frames}"
-        return None
 
 
 class FlatTrunk(nn.Module):

@@ -1,26 +1,29 @@
 """The model kinds: `register_model` is the one way a network joins the study.
 
-A model kind is one module holding its config class (a `ModelCfg` subclass, `kind` its
-default), its trunk and its `StructuredModel` subclass, which ends with
-`register_model(TheModel, labels={...})`. The built-in kinds register as `detach.models`
-imports them; a kind outside the package registers when its module is imported, which the
-configuration loader does for `kind: package.module:ConfigClass` or for an entry point of the
-`detach.model_kinds` group of an installed add-on package (`detach.config_schema`).
+A model kind is a config class (a `ModelCfg` subclass, `kind` its default) and a network: a
+`StructuredModel` subclass whose module ends with `register_model(TheModel, labels={...})`. The
+built-in kinds' config classes live apart from their networks in `detach.models.configs` (no
+torch), which the configuration layer imports by name; their networks' modules
+(`configs.BUILTIN_NETWORKS`) are imported the first time this registry is asked for a network or
+a label. A kind outside the package may keep both in one module, which registers when
+imported: the configuration loader imports it for `kind: package.module:ConfigClass` or for an
+entry point of the `detach.model_kinds` group of an installed add-on package
+(`detach.config.schema`).
 
 The registry also holds the names the tables print: `labels` maps each model YAML of the kind
 (configs/models/<name>.yaml, the `model` of a run and of its eval.json) to its row label, and
 `paper_labels` those the paper's own rows use where they differ. Tables list the models in
-registration order (the built-ins in the order `detach/models/__init__.py` imports them, then
-add-ons).
+registration order: the built-ins in the order of `BUILTIN_NETWORKS`, then add-ons.
 """
 
 from __future__ import annotations
 
-import dataclasses
+import importlib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-from detach.config_schema import ModelCfg, register_model_kind
+from detach.config.schema import ModelCfg, kind_of, register_model_kind
+from detach.models.configs import BUILTIN_NETWORKS
 from detach.models.structured import StructuredModel
 
 
@@ -44,11 +47,22 @@ class ModelEntry:
 
 
 _MODELS: dict[str, ModelEntry] = {}
+_BUILTIN_ORDER = {kind_of(config_class): i for i, config_class in enumerate(BUILTIN_NETWORKS)}
+_builtins_loaded = False
 
 
-def kind_of(config_class: type[ModelCfg]) -> str:
-    """The kind a config class declares: the default of its `kind` field."""
-    return next(f.default for f in dataclasses.fields(config_class) if f.name == "kind")
+def load_builtin_networks() -> None:
+    """Import the built-in networks' modules (each registers its kind), once per process."""
+    global _builtins_loaded
+    if _builtins_loaded:
+        return
+    _builtins_loaded = True  # first: each module registers through register_model, which calls this
+    try:
+        for module in BUILTIN_NETWORKS.values():
+            importlib.import_module(module)
+    except BaseException:
+        _builtins_loaded = False
+        raise
 
 
 def register_model(network: type[StructuredModel], labels: Mapping[str, str] | None = None,
@@ -62,6 +76,7 @@ def register_model(network: type[StructuredModel], labels: Mapping[str, str] | N
             and isinstance(config_class, type) and issubclass(config_class, ModelCfg)):
         raise ValueError(f"register_model: {network!r} is not a StructuredModel subclass with a "
                          f"ModelCfg subclass as its config_class")
+    load_builtin_networks()  # an add-on cannot take a built-in kind before it is registered
     kind = kind_of(config_class)
     old = _MODELS.get(kind)
     if old is not None and old.network is not network:
@@ -79,13 +94,15 @@ def unregister_model(kind: str) -> None:
 
 
 def registered_models() -> tuple[ModelEntry, ...]:
-    """Every registered model kind, in registration order."""
-    return tuple(_MODELS.values())
+    """Every registered model kind: the built-ins in the order of `BUILTIN_NETWORKS` (however
+    their modules were first imported), then the others in registration order."""
+    load_builtin_networks()
+    return tuple(sorted(_MODELS.values(), key=lambda e: _BUILTIN_ORDER.get(e.kind, len(_BUILTIN_ORDER))))
 
 
 def model_class(model_cfg: ModelCfg) -> type[StructuredModel]:
     """The network of a model config: the registered kind whose config class it is."""
-    for entry in _MODELS.values():
+    for entry in registered_models():
         if type(model_cfg) is entry.config_class:
             return entry.network
     raise ValueError(f"no network for model kind '{model_cfg.kind}' ({type(model_cfg).__name__}); its "
@@ -94,7 +111,7 @@ def model_class(model_cfg: ModelCfg) -> type[StructuredModel]:
 
 def model_label(name: str) -> str:
     """The row label of a model YAML's name (the name itself for a model no kind labels)."""
-    for entry in _MODELS.values():
+    for entry in registered_models():
         if name in entry.labels:
             return entry.labels[name]
     return name
@@ -102,7 +119,7 @@ def model_label(name: str) -> str:
 
 def paper_label(name: str) -> str:
     """The name the paper gives a model YAML's method (its row label unless it differs)."""
-    for entry in _MODELS.values():
+    for entry in registered_models():
         if name in entry.paper_labels:
             return entry.paper_labels[name]
     return model_label(name)
@@ -110,7 +127,7 @@ def paper_label(name: str) -> str:
 
 def model_order() -> tuple[str, ...]:
     """The labelled model names in registration order (the row order of the tables)."""
-    return tuple(name for entry in _MODELS.values() for name in entry.labels)
+    return tuple(name for entry in registered_models() for name in entry.labels)
 
 
 def _path(cls: type) -> str:

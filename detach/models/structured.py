@@ -57,8 +57,8 @@ from rsl_rl.modules import HiddenState
 from rsl_rl.utils import unpad_trajectories
 from tensordict import TensorDict
 
-from detach.config_schema import ModelCfg
-from detach.config_validate import Builder
+from detach.config.schema import ModelCfg
+from detach.config.validate import Builder
 from detach.envs.obs_spec import ObsSpec
 from detach.models.flat_policy import FlatPolicy
 from detach.models.layout import ObsLayout, no_columns, stack_columns

@@ -1,5 +1,5 @@
 """TokenHSI (Pan et al. 2025) as published: tokenizers, masked shared transformer, adapters
-(kind `tokenhsi`: config, trunks, head adapter, rsl-rl model).
+(kind `tokenhsi`, config `configs.TokenHSICfg`: trunks, head adapter, rsl-rl model).
 
 Policy (`TokenHSITrunk`): one token per input, all in one d_model space (TokenHSI's "unified
 token space", the coupling DETACH argues against):
@@ -28,7 +28,6 @@ Adapter stage (`adapt_skills`, TokenHSI's skill adaptation, `HeadAdapter`): see 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from typing import Any
 
 import torch
@@ -36,9 +35,10 @@ import torch.nn as nn
 from rsl_rl.modules import MLP, EmpiricalNormalization
 from tensordict import TensorDict
 
-from detach.config_schema import ModelCfg
+from detach.config.schema import ModelCfg
 from detach.models.attention import MultiHeadAttention
-from detach.models.layout import ObsLayout, TrunkModelCfg, no_columns
+from detach.models.configs import TokenHSICfg
+from detach.models.layout import ObsLayout, no_columns
 from detach.models.registry import register_model
 from detach.models.structured import StructuredModel
 from detach.skills import canonical_name, skill_class
@@ -46,54 +46,6 @@ from detach.skills import canonical_name, skill_class
 ACTIVE_SKILLS = "active_skills"
 """Key of the [N, K] bool mask of the current skill(s) in the trunk's input dict; taken from the
 raw `task` one-hot (a normalised one-hot loses it when a skill was always active)."""
-
-
-@dataclass(frozen=True)
-class TokenHSICfg(TrunkModelCfg):
-    """TokenHSI (kind `tokenhsi`); defaults are TokenHSI's published network settings."""
-
-    kind: str = "tokenhsi"
-    d_model: int = 64
-    num_layers: int = 4
-    num_heads: int = 2
-    ff_dim: int = 512
-    tokenizer_units: tuple[int, ...] = (256, 128)
-    self_frames: int = 1
-    """Newest frames of the `self` history the proprioception tokenizer reads (0 = all)."""
-    critic_units: tuple[int, ...] = (2048, 1024, 512)
-    """Hidden widths of the separate critic MLP (unused with `shared_trunk`)."""
-    adapt_skills: tuple[str, ...] = ()
-    """Adapter stage: these skills' task tokenizers and the head adapter train, everything else
-    of the policy (tokenizers, action token, transformer, head, input normaliser) is frozen
-    at the weights of the previous stage (`train.init_from`). Empty = ordinary training."""
-    tokenizer_from: dict[str, str] = field(default_factory=dict)
-    """With `train.init_from`: skill -> trained skill. Each named skill's task tokenizer, if
-    the source run never ran that skill, starts as a copy of the other skill's
-    (`TokenHSITrunk.copy_task_tokenizer`), as TokenHSI's skill adaptation starts a new task's
-    tokenizer from its base task's. Without it a skill the source never ran starts at its
-    random initialisation: the masking hides the trained tokenizers from it. Empty = none."""
-
-    def builds_on(self) -> str | None:
-        return "adapt_skills" if self.adapt_skills else None
-
-    def invalid(self) -> tuple[str, str] | None:
-        if self.self_frames < 0:
-            return "self_frames", f"expected >= 0 (0 = every frame), found {self.self_frames}"
-        try:
-            names = [canonical_name(s) for s in self.adapt_skills]
-        except ValueError as exc:
-            return "adapt_skills", str(exc)
-        if len(set(names)) != len(names):
-            return "adapt_skills", f"a skill is listed twice: {list(self.adapt_skills)}"
-        if names and self.shared_trunk:
-            return "adapt_skills", "the adapter stage freezes the transformer; use it without shared_trunk"
-        try:
-            pairs = [(canonical_name(a), canonical_name(b)) for a, b in self.tokenizer_from.items()]
-        except ValueError as exc:
-            return "tokenizer_from", str(exc)
-        if any(a == b for a, b in pairs):
-            return "tokenizer_from", f"a skill copies its own tokenizer: {dict(self.tokenizer_from)}"
-        return None
 
 
 def task_observation_index(layout: ObsLayout, skill: str) -> torch.Tensor:

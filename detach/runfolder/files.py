@@ -23,7 +23,7 @@ from typing import Any
 
 import yaml
 
-from detach.yaml_source import MAX_YAML_DEPTH, MAX_YAML_NODES
+from detach.config.yaml_source import MAX_YAML_DEPTH, MAX_YAML_NODES
 
 MB = 1024 * 1024
 MAX_BYTES: dict[str, int] = {".json": 16 * MB, ".yaml": 4 * MB, ".log": 64 * MB}

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from detach.config import ConfigError, dump, load_run_config
-from detach.config_schema import RunConfig
+from detach.config.schema import RunConfig
 from detach.runfolder import files as run_files
 from detach.runfolder.atomic import atomic_write_text
 from detach.runfolder.checkpoints import checkpoint_files, replays_in

@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from detach.config_schema import RunConfig
+from detach.config.schema import RunConfig
 from detach.runfolder import files as run_files
 from detach.runfolder.messages import RunSummary
 from detach.runfolder.names import CONFIG_FILE

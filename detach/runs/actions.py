@@ -19,8 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Sequence
 
-from detach.config import ConfigError, dump, resolve
-from detach.config_schema import RunConfig
+from detach.config import ConfigError, dump
+from detach.config.schema import RunConfig
 from detach.runfolder.folder import RunFolder, run_folder_name
 from detach.runfolder.names import EXPORT_FORMATS
 
@@ -93,10 +93,9 @@ def train_config(task: str | Path, model: str = "detach", *, seed: int = 0, devi
         task_path(extra, "--eval-on")
     if test_offset is not None and not cell:
         raise ConfigError(TEST_TRIALS_CELLS_ONLY)
-    from detach.train.checks import complete_run_config
+    from detach.train.run_config import resolve_run
 
-    cfg = complete_run_config(resolve(task, model, list(overrides), seed=seed, device=device,
-                                      presets=list(presets)))
+    cfg = resolve_run(task, model, list(overrides), seed=seed, device=device, presets=list(presets))
     return with_trials(cfg, trials)
 
 
@@ -131,8 +130,8 @@ def train(task: str | Path, model: str = "detach", *, seed: int = 0, device: str
         raise ConfigError(f"cannot create a run folder under --runs {runs} ({why}); "
                           f"expected a writable folder") from None
     print(f"run folder: {run.path}")
-    code = run_job(run, lambda r: train_and_evaluate(
-        r, resume=False, eval_tasks=eval_tasks, trials=None, evaluate=evaluate, test_offset=test_offset))
+    code = run_job(run, lambda r: train_and_evaluate(  # the config in memory: config.yaml is not read back
+        r, cfg, resume=False, eval_tasks=eval_tasks, trials=None, evaluate=evaluate, test_offset=test_offset))
     print(f"run folder: {run.path}")
     return RunOutcome(run.path, code)
 
@@ -192,7 +191,7 @@ def resume(run_dir: str | Path, *, overrides: Sequence[str] = (), device: str = 
     eval_tasks = [task_path(extra, "--eval-on") for extra in eval_on]
     print(said, flush=True)
     code = run_job(run, lambda r: train_and_evaluate(
-        r, resume=plan.checkpoint is not None, eval_tasks=eval_tasks, trials=None, evaluate=evaluate,
+        r, plan.config, resume=plan.checkpoint is not None, eval_tasks=eval_tasks, trials=None, evaluate=evaluate,
         device=device, checkpoint=plan.checkpoint, test_offset=test_offset))
     return RunOutcome(run.path, code)
 

@@ -10,7 +10,7 @@ rule for every model.
 
 from __future__ import annotations
 
-from detach.config_schema import RunConfig
+from detach.config.schema import RunConfig
 from detach.runfolder.names import checkpoint_file, checkpoint_iteration
 from detach.runfolder.atomic import atomic_write_json
 from detach.runfolder.folder import RunFolder

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Sequence
 
 from detach.config import ConfigError, load_run_config
-from detach.config_schema import RunConfig
+from detach.config.schema import RunConfig
 from detach.eval.trial_sets import TrialSetError
 from detach.runfolder.folder import RunFolder
 from detach.runfolder.liveness import STALE_AFTER_S, this_host
@@ -55,7 +55,7 @@ def plan_resume(run_dir: Path, overrides: Sequence[str] = (), test_offset: int |
     check_test_trials(run, test_offset)
     stored = run.config()  # validates the stored config as a user error, not a traceback
     checkpoint = resume_checkpoint(run, stored, rename=rename)
-    config = extended_config(run, overrides, checkpoint) if overrides else stored
+    config = extended_config(run, stored, overrides, checkpoint) if overrides else stored
     return ResumePlan(run, stored, config, checkpoint)
 
 
@@ -122,14 +122,15 @@ def _check_overridable(overrides: Sequence[str]) -> None:
                               f"{', '.join(k + '*' if k.endswith('.') else k for k in RESUME_OVERRIDABLE)} may change")
 
 
-def extended_config(run: RunFolder, overrides: Sequence[str], checkpoint: Path) -> RunConfig:
-    """The run's config with overrides that cannot invalidate the checkpoints (train longer).
+def extended_config(run: RunFolder, old: RunConfig, overrides: Sequence[str], checkpoint: Path) -> RunConfig:
+    """The run's config (`old`, as stored) with overrides that cannot invalidate the
+    checkpoints (train longer).
 
     The past never changes: a longer run extends its last stage (DETACH's schedule is
     written out in train.stages, so it is no longer rescaled), and a schedule stated with
     train.stages.* must give every completed iteration the stage it was trained in."""
     _check_overridable(overrides)
-    old, new = run.config(), load_run_config(run.config_path, overrides)
+    new = load_run_config(run.config_path, overrides)
     completed = checkpoint_iteration(checkpoint.name)
     if new.train.max_iterations <= completed:
         raise ConfigError(f"train.max_iterations: expected more than the {completed + 1} iterations the "

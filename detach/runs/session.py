@@ -1,9 +1,11 @@
 """Composition root of a run folder: assets -> training (`detach.train.setup`) -> evaluation.
 
-`train_and_evaluate` trains a run folder's config (or resumes it from its latest checkpoint)
-and then evaluates it; `evaluate_run` evaluates a checkpoint on the run's task or another one
-(the paper's environment-generalisation experiment: train on LH1, evaluate on LH2/LH3).
-Missing assets are built before any environment exists, with a visible progress line.
+`train_and_evaluate` trains a run folder with the config it was created (or resumed) with, in
+memory: the process that wrote config.yaml neither reads nor validates it again (a new process,
+evaluating or resuming a stored run, reads it once), and then evaluates it; `evaluate_run`
+evaluates a checkpoint on the run's task or another one (the paper's environment-generalisation
+experiment: train on LH1, evaluate on LH2/LH3). Missing assets are built before any environment
+exists, with a visible progress line.
 """
 
 from __future__ import annotations
@@ -16,8 +18,8 @@ from typing import Sequence
 import yaml
 
 from detach.config import load_run_config, load_task
-from detach.config_validate import to_plain
-from detach.config_schema import RunConfig
+from detach.config.validate import to_plain
+from detach.config.schema import RunConfig
 from detach.envs.lh_env import make_env
 from detach.eval.aids import run_aids
 from detach.eval.episodes import TrainingEpisodes, run_evaluation
@@ -38,13 +40,13 @@ from detach.train.setup import (
 )
 
 
-def train_and_evaluate(run: RunFolder, resume: bool, eval_tasks: Sequence[Path] = (),
+def train_and_evaluate(run: RunFolder, cfg: RunConfig, resume: bool, eval_tasks: Sequence[Path] = (),
                        trials: int | None = None, evaluate: bool = True,
                        device: str | None = None, checkpoint: Path | None = None,
                        test_offset: int | None = None) -> None:
-    """Train (or resume from `checkpoint`, default the newest), then evaluate (on the test
-    trials of `test_offset` when given: a sweep cell's final evaluation)."""
-    cfg = run.config()
+    """Train `cfg`, the config the run folder records (or resume from `checkpoint`, default the
+    newest), then evaluate (on the test trials of `test_offset` when given: a sweep cell's final
+    evaluation)."""
     device = device or cfg.device
     checkpoint = (checkpoint or run.latest_checkpoint()) if resume else None
     log = RunLogWriter(run.log_path, append=resume,
@@ -75,9 +77,9 @@ def train_and_evaluate(run: RunFolder, resume: bool, eval_tasks: Sequence[Path] 
         del env, runner  # the validation env takes their place
         print(select_checkpoint(run, cfg, device), flush=True)
     if evaluate:
-        evaluate_run(run, None, None, trials, device, test_offset=test_offset)
+        evaluate_run(run, None, None, trials, device, test_offset=test_offset, train_cfg=cfg)
         for task in eval_tasks:
-            evaluate_run(run, task, None, trials, device, test_offset=test_offset)
+            evaluate_run(run, task, None, trials, device, test_offset=test_offset, train_cfg=cfg)
 
 
 def write_agent_params(run: RunFolder, cfg: RunConfig, env) -> Path:
@@ -141,15 +143,16 @@ def smaller_evaluation(run: RunFolder, task_path: Path | None, trials: int | Non
 
 def evaluate_run(run: RunFolder, task_path: Path | None, checkpoint: Path | None,
                  trials: int | None, device: str | None = None, record: bool = True,
-                 test_offset: int | None = None) -> Path:
+                 test_offset: int | None = None, train_cfg: RunConfig | None = None) -> Path:
     """Evaluate the policy; writes eval.json (own task) or eval_<task>.json (another task),
     on the development trials, or with `test_offset` (a sweep cell only) on the test trials,
     into eval.test.json / eval_<task>.test.json.
 
     On the run's own task (and with `record`) the scene and every trial go to log.mcap;
-    never pass record=True while another process still writes that log."""
+    never pass record=True while another process still writes that log. `train_cfg`: the run's
+    config when this process holds it already (None: read from config.yaml)."""
     trial_set = trial_set_of(run, test_offset)
-    train_cfg = run.config()
+    train_cfg = train_cfg or run.config()
     cfg = eval_config(train_cfg, task_path)
     checkpoint = checkpoint or run_policy_checkpoint(run.path, device or cfg.device)
     if checkpoint is None:

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import torch
 
-from detach.config_schema import RunConfig
+from detach.config.schema import RunConfig
 from detach.runs.validation import validation_env, validation_score
 from detach.train.setup import action_mean_layer, apply_action_means
 

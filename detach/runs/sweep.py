@@ -32,7 +32,7 @@ from detach.runs.sweep_graph import Cell, cell_work, cells, existing_runs, is_co
 from detach.runs.sweep_jobs import cell_steps, job_path
 from detach.runs.sweep_launchers import LocalPool, SubmititPool, cell_env, make_pool, run_worker
 from detach.runs.job_file import write_job
-from detach.yaml_source import ConfigError
+from detach.config.yaml_source import ConfigError
 
 
 # ------------------------------------------------------------------------------- locks

@@ -20,11 +20,11 @@ from pathlib import Path
 from typing import Literal, Sequence
 
 from detach.config import find_config_file, load_merged
-from detach.config_validate import Builder
+from detach.config.validate import Builder
 from detach.eval.trial_sets import TrialSetError, check_test_offset
 from detach.skills import canonical_name
 from detach.train.teachers import ORACLE
-from detach.yaml_source import ConfigError
+from detach.config.yaml_source import ConfigError
 
 PhaseB = Literal["zero_shot", "composition"]
 

@@ -21,7 +21,7 @@ from detach.runfolder.names import eval_file
 from detach.runs.sweep_config import SweepCfg, load_sweep, task_file
 from detach.train.checkpoints import kept_iterations, saves_after
 from detach.train.teachers import ORACLE
-from detach.yaml_source import ConfigError
+from detach.config.yaml_source import ConfigError
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,7 @@ from detach.runfolder.folder import RunFolder
 from detach.runs.sweep_graph import Cell, missing_evals
 from detach.runs.job_file import JobStep
 from detach.train.teachers import ORACLE
-from detach.yaml_source import ConfigError
+from detach.config.yaml_source import ConfigError
 
 JOBS_DIR = ".jobs"
 

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import BinaryIO, Protocol
 
 from detach.runs.job_file import worker_command
-from detach.yaml_source import ConfigError
+from detach.config.yaml_source import ConfigError
 
 
 class CellTask(Protocol):

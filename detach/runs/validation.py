@@ -12,7 +12,7 @@ from typing import Callable
 
 import torch
 
-from detach.config_schema import RunConfig
+from detach.config.schema import RunConfig
 from detach.envs.lh_env import LHEnv, make_env
 from detach.eval.episodes import run_evaluation
 from detach.eval.trial_sets import VALIDATION_SEED_OFFSET, trial_seed

@@ -18,7 +18,7 @@ from typing import Callable
 import mujoco
 import torch
 
-from detach.config_schema import SimCfg
+from detach.config.schema import SimCfg
 from detach.sim.backend import PhysicsBackend
 
 BackendFactory = Callable[[SimCfg, mujoco.MjModel, int, torch.device], PhysicsBackend]

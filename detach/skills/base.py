@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 if TYPE_CHECKING:  # pragma: no cover - types only
-    from detach.config_schema import TaskCfg
+    from detach.config.schema import TaskCfg
     from detach.skills.context import OracleCommand, SkillContext, SkillServices
     from scene_builder.scene import SceneInfo
 

@@ -17,7 +17,7 @@ import torch
 from detach.sim.state import SimState
 
 if TYPE_CHECKING:  # pragma: no cover - types only
-    from detach.config_schema import RunConfig
+    from detach.config.schema import RunConfig
     from detach.sim.raster import Raster
     from detach.skills.trajectories import TrajectoryReference
     from scene_builder.scene import SceneInfo

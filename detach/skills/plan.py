@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from detach.config_schema import TaskCfg
+from detach.config.schema import TaskCfg
 from detach.skills.base import RAND, PlanError, Subtask
 from detach.skills.registry import canonical_name, skill_class
 

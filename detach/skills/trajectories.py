@@ -19,7 +19,7 @@ import math
 import numpy as np
 import torch
 
-from detach.config_schema import TrajectoryGenCfg
+from detach.config.schema import TrajectoryGenCfg
 
 FIXED_TRAJ_DT = 0.1
 """Vertex spacing in time (s) of YAML trajectories after timing them at the mean speed."""

@@ -44,8 +44,8 @@ from tensordict import TensorDict
 from rsl_rl.algorithms import PPO
 from rsl_rl.utils.utils import reduce_gradients_in_buckets
 
-from detach.config_schema import AmpCfg
-from detach.config_validate import Builder
+from detach.config.schema import AmpCfg
+from detach.config.validate import Builder
 from detach.models.structured import link_shared_trunk
 from detach.train.discriminator import AmpDiscriminator, ReplayBuffer
 

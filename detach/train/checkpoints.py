@@ -31,7 +31,7 @@ from detach.runfolder.checkpoints import checkpoints_in, newest_readable, policy
 from detach.runfolder.folder import RunFolder
 from detach.runfolder.messages import ContractError
 from detach.runfolder.names import checkpoint_iteration, replay_file
-from detach.yaml_source import ConfigError
+from detach.config.yaml_source import ConfigError
 
 REQUIRED_KEYS = ("actor_state_dict", "critic_state_dict", "iter")
 

@@ -12,8 +12,8 @@ A resumed run never changes its past: `resumed_stages` extends the last stage wh
 
 from __future__ import annotations
 
-from detach.config_schema import RunConfig, StagesCfg
-from detach.yaml_source import ConfigError
+from detach.config.schema import RunConfig, StagesCfg
+from detach.config.yaml_source import ConfigError
 
 STAGE_NAMES = ("pretrain", "fusion", "joint")
 

@@ -18,7 +18,7 @@ from rsl_rl.modules import EmpiricalNormalization
 
 from detach.character import character_class
 from detach.config import ConfigError, load_run_config
-from detach.config_schema import RunConfig, TaskCfg
+from detach.config.schema import RunConfig, TaskCfg
 from detach.envs.lh_env import LHEnv
 from detach.models.factory import DEFAULT_OBS_GROUPS, rsl_rl_model_cfgs
 from detach.models.losses import combine_aux_losses

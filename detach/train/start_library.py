@@ -14,7 +14,7 @@ from dataclasses import replace
 import torch
 
 from detach.character import character_class
-from detach.config_schema import RunConfig
+from detach.config.schema import RunConfig
 from detach.envs.lh_env import LHEnv, make_env
 from detach.envs.subtask_starts import RECORD_ENVS, SubtaskStarts, recording_summary, record_subtask_starts
 

@@ -34,7 +34,7 @@ import torch
 from tensordict import TensorDict
 
 from detach.config import load_run_config
-from detach.config_schema import RunConfig
+from detach.config.schema import RunConfig
 from detach.envs.lh_env import LHEnv
 from detach.envs.oracle import ORACLE_GROUP
 from detach.runfolder.folder import RunFolder
@@ -42,7 +42,7 @@ from detach.runfolder.names import CONFIG_FILE
 from detach.skills import canonical_name
 from detach.train.checkpoints import find_init_checkpoint
 from detach.train.trained_actor import load_trained_actor
-from detach.yaml_source import ConfigError
+from detach.config.yaml_source import ConfigError
 
 ORACLE = "oracle"
 """The `train.teachers` value that names the scripted oracle instead of a run."""

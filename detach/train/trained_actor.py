@@ -9,7 +9,7 @@ from typing import Any
 import torch
 
 from detach.character import character_class
-from detach.config_schema import RunConfig
+from detach.config.schema import RunConfig
 from detach.envs.lh_env import LHEnv
 from detach.models.factory import build_actor_critic
 from detach.train.checkpoints import check_model, load_module_weights, read_checkpoint

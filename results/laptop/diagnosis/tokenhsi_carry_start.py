@@ -14,8 +14,8 @@ from pathlib import Path
 import torch
 
 from detach import (
-    apply_action_means, build_runner, complete_run_config, load_initial_weights, resolve, run_evaluation,
-    seed_everything, skill_names, validation_env, validation_seed,
+    apply_action_means, build_runner, load_initial_weights, resolve_run, run_evaluation, seed_everything, skill_names,
+    validation_env, validation_seed,
 )
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -28,8 +28,8 @@ FOLLOW = skill_names().index("follow")
 
 
 def stage_start(follow_run: str, *extra: str):
-    cfg = complete_run_config(resolve(ROOT / "configs/tasks/carry.yaml", "tokenhsi",
-                                      [*STAGE, f"train.init_from={follow_run}", *extra]))
+    cfg = resolve_run(ROOT / "configs/tasks/carry.yaml", "tokenhsi",
+                      [*STAGE, f"train.init_from={follow_run}", *extra])
     seed_everything(cfg.seed)
     _env, runner = build_runner(cfg, None, "cpu", progress=False)
     line = load_initial_weights(runner, cfg)

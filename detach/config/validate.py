@@ -1,4 +1,4 @@
-"""Turning checked YAML data into the frozen dataclasses of `detach.config_schema`.
+"""Turning checked YAML data into the frozen dataclasses of `detach.config.schema`.
 
 The type hints of the dataclasses are the schema: this module walks them, so a new config
 field needs no validation code. Every error names file, line, key path, what was expected and
@@ -14,7 +14,7 @@ import types
 import typing
 from typing import Any, Literal
 
-from detach.yaml_source import ConfigError, ConfigOrigin, KeyPath, Provenance
+from detach.config.yaml_source import ConfigError, ConfigOrigin, KeyPath, Provenance
 
 EXPONENT_FLOAT = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)[eE][+-]?\d+")
 """A number in exponent notation that YAML 1.1 leaves a string (no dot: `1e-5`, `3E4`)."""

@@ -1,25 +1,39 @@
-"""The checks of a run configuration that need the plug-in registries, before anything runs.
+"""A new run's config: `resolve_run` loads, merges, overrides and validates it
+(`detach.config.resolve`) and completes it (`complete_run_config`), once.
 
-`detach.config` checks the structure of a configuration; the names it cannot know (character,
-physics backend, the plan's skills, reward terms, the model's network) are checked here
-against the registries of their packages, with the file and line the value came from, and
-the character's initial action std is filled in so that config.yaml records the number.
+`detach.config` checks the structure of a configuration and imports nothing above it; the
+names it cannot know (character, physics backend, the plan's skills, reward terms, the model's
+network and the skills its config names) are checked here against the registries of their
+packages, with the file and line the value came from, and what they decide is filled in
+(the character's initial action std, the run's skills, each teacher's checkpoint, the backend's
+settings) so that config.yaml records it. The layer of training is the lowest that sees every
+registry (`train.checkpoints` and `train.teachers` included); every entry that creates a run
+(train, its dry run, a sweep's cell through `detach.runs.actions`) calls `resolve_run`, and the
+run is then built from the returned config in memory.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
+from typing import Sequence
 
 from detach.character import character_class
-from detach.config_schema import RunConfig
+from detach.config import ConfigError, RunConfig, resolve
 from detach.envs.rewards import check_reward_terms
 from detach.models.registry import model_class
 from detach.sim import SimConfigError, check_backend, check_sim, sim_settings
-from detach.config import ConfigError
 from detach.skills import PlanError, canonical_name, run_skills
 from detach.skills.plan import compile_plan
 from detach.train.checkpoints import find_init_checkpoint
 from detach.train.teachers import ORACLE, teacher_source
+
+
+def resolve_run(task_path: str | Path, model_name: str = "mlp", overrides: Sequence[str] = (), seed: int = 0,
+                device: str = "cpu", presets: Sequence[str] = ()) -> RunConfig:
+    """Task YAML + model YAML + presets + overrides -> the validated, completed config of a new
+    run (arguments as `detach.config.resolve`); ConfigError naming file, line and key."""
+    return complete_run_config(resolve(task_path, model_name, overrides, seed=seed, device=device, presets=presets))
 
 
 def complete_run_config(cfg: RunConfig) -> RunConfig:
@@ -67,6 +81,10 @@ def complete_run_config(cfg: RunConfig) -> RunConfig:
         model_class(cfg.model)
     except ValueError as exc:
         raise origin.error(("model", "kind"), str(exc)) from None
+    invalid_skills = getattr(cfg.model, "invalid_skills", None)  # a model kind's rules on skill names
+    problem = invalid_skills(canonical_name) if invalid_skills is not None else None
+    if problem is not None:
+        raise origin.error(("model", problem[0]), problem[1])
     for i, skill in enumerate(cfg.rewards.paid_skills or ()):
         try:
             canonical_name(skill)

@@ -1,4 +1,4 @@
-"""The strict, Hydra-free configuration loader.
+"""The strict, Hydra-free configuration loader (re-exported by `detach.config`).
 
 A run's configuration is one task YAML (configs/tasks/) merged with one model YAML
 (configs/models/), each possibly `extends:`-ing others (relative paths, chained, deep merge,
@@ -17,11 +17,12 @@ from typing import Any, Sequence
 
 import yaml
 
-from detach.config_schema import (
-    VALUE_RANGES, EnvCfg, EvalCfg, ModelCfg, RewardsCfg, RunConfig, SimCfg, TaskCfg, TrainCfg,
+from detach.config.schema import (
+    EnvCfg, EvalCfg, ModelCfg, RewardsCfg, RunConfig, SimCfg, TaskCfg, TrainCfg,
 )
-from detach.config_validate import Builder, describe, suggest, to_plain
-from detach.yaml_source import (
+from detach.config.ranges import check_ranges
+from detach.config.validate import Builder, describe, suggest, to_plain
+from detach.config.yaml_source import (
     ConfigError, ConfigOrigin, KeyPath, Provenance, format_path, load_yaml, parse_scalar,
 )
 
@@ -31,9 +32,6 @@ MODEL_SECTIONS: dict[str, Any] = {"model": ModelCfg, "train": TrainCfg}
 TASK_KEYS = tuple(f.name for f in dataclasses.fields(TaskCfg))
 RUN_KEYS = ("task_name", "model_name", "seed", "device")
 TARGET_SOURCE = re.compile(r"^(traj|tarpos|scene)_(\d+|rand)$")
-
-__all__ = ["ConfigError", "resolve", "dump", "load_run_config", "load_task",
-           "load_merged", "apply_overrides", "find_model_file", "task_name_of"]
 
 
 # ---------------------------------------------------------------------------- extends + merge
@@ -188,22 +186,8 @@ def _build_run(data: dict[str, Any], prov: Provenance, file: str,
     hints = typing.get_type_hints(RunConfig)
     runs = {k: builder.build(hints[k], data.get(k, run_keys[k]), (k,)) for k in RUN_KEYS}
     cfg = RunConfig(task=task, **runs, **sections, origin=ConfigOrigin(file, prov))
-    check_ranges(cfg)
+    check_ranges(cfg, cfg.origin)
     return cfg
-
-
-def check_ranges(cfg: RunConfig) -> None:
-    """Every field of `VALUE_RANGES` within its range (ConfigError at the value's file/line)."""
-    for dotted, allowed in VALUE_RANGES.items():
-        value: Any = cfg
-        for part in dotted.split("."):
-            value = getattr(value, part, None)
-        if isinstance(value, (int, float)) and not isinstance(value, bool) and not allowed.admits(value):
-            finite = "finite " if value in (float("inf"), float("-inf")) else ""
-            path, message = tuple(dotted.split(".")), f"expected a {finite}value {allowed.describe()}, found {value}"
-            if path in cfg.origin.prov:
-                raise cfg.origin.error(path, message)
-            raise ConfigError(message, "<command line>", None, path)  # e.g. --seed: in no file
 
 
 def check_model(model: ModelCfg, builder: Builder) -> None:
@@ -260,7 +244,7 @@ def task_name_of(task_path: Path) -> str:
 def builtin_configs() -> Path:
     """The configs/ shipped with detach: `detach/configs/` inside an installed wheel (package
     data), the checkout's `configs/` in a source tree or an editable install."""
-    here = Path(__file__).resolve().parent
+    here = Path(__file__).resolve().parent.parent  # detach/
     packaged = here / "configs"
     return packaged if packaged.is_dir() else here.parent / "configs"
 

@@ -1,9 +1,9 @@
 """`detach-run keys [section]`: every config key with its type, default and doc.
 
-Generated from the dataclasses of `detach.config_schema` and the config classes of the
-registered model kinds (`detach.models.register_model`, installed add-ons included), so the list cannot drift from
-what the loader accepts. A field's doc is the string literal under it in the class body (the
-convention of this code base); ranges come from `VALUE_RANGES`.
+Generated from the dataclasses of `detach.config.schema` and the config classes of the model
+kinds (the built-ins', `detach.models.configs`, and installed add-ons'), so the list cannot drift
+from what the loader accepts. A field's doc is the string literal under it in the class body (the
+convention of this code base); a range is the field's own (`detach.config.ranges.ranged`).
 """
 
 from __future__ import annotations
@@ -18,8 +18,9 @@ from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any, Iterator
 
-from detach.config_schema import (
-    VALUE_RANGES, EnvCfg, EvalCfg, ModelCfg, RewardsCfg, SimCfg, TaskCfg, TrainCfg, registered_model_kinds,
+from detach.config.ranges import range_of
+from detach.config.schema import (
+    EnvCfg, EvalCfg, ModelCfg, RewardsCfg, SimCfg, TaskCfg, TrainCfg, registered_model_kinds,
 )
 
 SECTIONS: dict[str, type] = {"task": TaskCfg, "sim": SimCfg, "env": EnvCfg, "rewards": RewardsCfg,
@@ -133,7 +134,7 @@ def _keys_of(cls: type, prefix: str, section: str, kind: str | None = None,
             yield from _keys_of(nested, f"{path}.", section, kind)
         else:
             doc = docs.get(f.name, "")
-            rng = VALUE_RANGES.get(path)
+            rng = range_of(f)
             if rng is not None:
                 doc = f"{doc} (range: {rng.describe()})".strip()
             yield Key(path, type_name(tp), _default_text(f), doc, section, kind)
@@ -146,7 +147,7 @@ def model_kinds() -> dict[str, type[ModelCfg]]:
 
 def all_keys(sections: tuple[str, ...] | None = None) -> list[Key]:
     """Every key of a run configuration (or of `sections`), section by section (model: the
-    common fields, then each kind's own; listing those imports the networks, hence torch)."""
+    common fields, then each kind's own, from its config class; no network is imported)."""
     out: list[Key] = []
     for section, cls in SECTIONS.items():
         if sections is not None and section not in sections:

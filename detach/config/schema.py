@@ -1,18 +1,22 @@
 """Typed, frozen sections of a run configuration.
 
 Every YAML section maps onto one dataclass below; `detach.config` validates raw YAML into
-these types, so the rest of the code never sees an unchecked dict. Units: metres, seconds,
-radians; positions are world frame unless a field says otherwise.
+these types, so the rest of the code never sees an unchecked dict. A field's doc is the string
+under it; a numeric field whose type admits values a run cannot use declares its range there
+too (`ranged`, `detach.config.ranges`). Units: metres, seconds, radians; positions are world
+frame unless a field says otherwise.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from typing import ClassVar, Literal
 
-from detach.yaml_source import ConfigOrigin
+from detach.config.ranges import AT_LEAST_0, AT_LEAST_1, ENV_COUNT, FRACTION, POSITIVE, RANGE, Range, ranged
+from detach.config.yaml_source import ConfigOrigin
 
 Vec2 = tuple[float, float]
 Vec3 = tuple[float, float, float]
@@ -73,21 +77,21 @@ class SimCfg:
     backend: str = "mujoco_batch"
     """Physics backend (`detach.sim`): `mujoco_batch` (CPU, all cores) or `warp` (MuJoCo Warp,
     GPU; the `[warp]` extra)."""
-    num_envs: int = 64
-    physics_dt: float = 1.0 / 120.0
-    substeps: int = 4
+    num_envs: int = ranged(64, ENV_COUNT)
+    physics_dt: float = ranged(1.0 / 120.0, POSITIVE)
+    substeps: int = ranged(4, AT_LEAST_1)
     """Physics steps per control step: 1/120 s x 4 = 30 Hz control."""
-    nthread: int = 0
+    nthread: int = ranged(0, AT_LEAST_0)
     """Threads stepping the batch; 0 = all cores."""
-    friction: float = 1.0
-    solver_iterations: int = 4
+    friction: float = ranged(1.0, AT_LEAST_0)
+    solver_iterations: int = ranged(4, AT_LEAST_1)
     sleep: bool | None = None
     """Let resting objects sleep (MuJoCo islands): untouched boxes and furniture cost nothing
     until something touches them (~35% less physics per step in the LH scenes). None: the
     backend's default (on with mujoco_batch, off with warp, which does not support it)."""
-    nconmax: int = 96
+    nconmax: int = ranged(96, AT_LEAST_1)
     """warp: contacts allocated per world (the buffer is shared by all worlds)."""
-    njmax: int = 256
+    njmax: int = ranged(256, AT_LEAST_1)
     """warp: constraint rows allocated per world (contacts x 4 pyramid edges, joint limits,
     the grasp weld); a world past it raises an error naming this key."""
     cuda_graph: bool = True
@@ -103,8 +107,8 @@ class SimCfg:
 @dataclass(frozen=True)
 class HeightMapCfg:
     enabled: bool = True
-    grid: int = 25
-    spacing: float = 0.1
+    grid: int = ranged(25, AT_LEAST_1)
+    spacing: float = ranged(0.1, POSITIVE)
     camera_height: float = 10.0
 
 
@@ -112,15 +116,15 @@ class HeightMapCfg:
 class TrajectoryGenCfg:
     """Procedural reference trajectories for `follow` (paper: Data Generation Parameters)."""
 
-    num_samples: int = 10
+    num_samples: int = ranged(10, AT_LEAST_1)
     """Points of the path ahead in each env observation frame, `sample_dt` s apart."""
-    sample_dt: float = 0.5
-    speed_min: float = 1.4
-    speed_max: float = 1.5
+    sample_dt: float = ranged(0.5, POSITIVE)
+    speed_min: float = ranged(1.4, AT_LEAST_0)
+    speed_max: float = ranged(1.5, AT_LEAST_0)
     accel_max: float = 2.0
-    sharp_turn_prob: float = 0.02
+    sharp_turn_prob: float = ranged(0.02, FRACTION)
     sharp_turn_angle: float = 1.57
-    num_verts: int = 101
+    num_verts: int = ranged(101, Range(2))
     """Vertices of one generated trajectory (covers a whole episode)."""
 
 
@@ -133,27 +137,27 @@ class EnvCfg:
     is its width): every skill of the plan and any others the policy should know. Empty: follow,
     carry, climb, sit, then the plan's other skills in registry order; filled in when a run is
     created, so that config.yaml records it (a config.yaml without it means that list)."""
-    episode_length: int = 1200
-    success_threshold: float = 0.3
-    max_transition_steps: int = 60
-    termination_height: float = 0.15
-    traj_fail_distance: float = 4.0
+    episode_length: int = ranged(1200, AT_LEAST_1)
+    success_threshold: float = ranged(0.3, POSITIVE)
+    max_transition_steps: int = ranged(60, AT_LEAST_1)
+    termination_height: float = ranged(0.15, AT_LEAST_0)
+    traj_fail_distance: float = ranged(4.0, POSITIVE)
     init: Literal["default", "random", "mixed"] = "mixed"
-    mixed_init_prob: float = 0.5
-    mid_task_init_prob: float = 0.0
+    mixed_init_prob: float = ranged(0.5, FRACTION)
+    mid_task_init_prob: float = ranged(0.0, FRACTION)
     """Training only: the share of episodes that start from the middle of their first
     subtask's task where its skill offers such states (Carry: at the box with the hands on its
     lid, or the box carried part of the way; TokenHSI's initialisation from its box clips;
     Climb: standing beside the object, facing it). Needs a character that can start holding
     an object (the puppet)."""
-    subtask_start_prob: float = 0.0
+    subtask_start_prob: float = ranged(0.0, FRACTION)
     """Training only: the share of episodes of a plan of two or more subtasks that start at a
     later subtask (uniform over those the scripted oracle reached), from the state the oracle
     was in when that subtask began (`detach.envs.subtask_starts`). Needs a scriptable
     character (the puppet)."""
-    history_self: int = 5
-    history_env: int = 5
-    amp_obs_steps: int = 10
+    history_self: int = ranged(5, AT_LEAST_1)
+    history_env: int = ranged(5, AT_LEAST_1)
+    amp_obs_steps: int = ranged(10, AT_LEAST_1)
     iet: Literal["none", "last_subtask", "all"] = "last_subtask"
     task_specific_discrimination: bool = True
     height_map: HeightMapCfg = HeightMapCfg()
@@ -161,7 +165,7 @@ class EnvCfg:
     climb_pelvis_height: float = 0.9
     """Climb target = the object's climb point (top surface) raised by this much (m): a
     standing pelvis; `climb` succeeds with the pelvis at or above it (within the threshold)."""
-    follow_on_path_frac: float = 0.9
+    follow_on_path_frac: float = ranged(0.9, FRACTION)
     """A follow subtask succeeds when its end is reached and the pelvis was within
     `success_threshold` of the path (XY) for at least this fraction of its steps."""
 
@@ -177,14 +181,14 @@ class RewardsCfg:
     are never rewarded, so their success measures skill generalisation."""
     terms: dict[str, float] = field(default_factory=dict)
     """Weights of named reward terms (`<skill>/<term>`); printed as a table at start-up."""
-    subtask_bonus: float = 0.0
+    subtask_bonus: float = ranged(0.0, AT_LEAST_0)
     """Reward paid once, at the control step a subtask's transition fires, for subtasks of the
     paid skills. Each skill's terms pay at most 1 per step, and most near its own end: the
     scripted oracle earns 1.0 per step holding Follow's end point and 0.15 in Carry's first
     ten steps. Without a bonus, a policy can earn more by lingering just outside a subtask's
     success distance than by moving on. Off by default: 20 lowered LH1's Follow success
     (docs/PROTOCOL.md)."""
-    done_subtask_reward: float = 0.0
+    done_subtask_reward: float = ranged(0.0, AT_LEAST_0)
     """Reward paid at every step for each subtask of a paid skill the episode has completed
     (subtasks a late start skipped count as completed). At or above the most one subtask's
     terms pay per step (1 with the default weights) moving on never lowers the per-step
@@ -195,15 +199,16 @@ class RewardsCfg:
 
 @dataclass(frozen=True)
 class EvalCfg:
-    trials: int = 100
-    max_transition_steps: int = 20
-    num_envs: int = 16
-    confidence: float = 0.95
+    trials: int = ranged(100, AT_LEAST_1)
+    max_transition_steps: int = ranged(20, AT_LEAST_1)
+    num_envs: int = ranged(16, ENV_COUNT)
+    confidence: float = ranged(0.95, Range(0, 1, open_low=True, open_high=True))
 
 
-BUILTIN_MODELS = "detach.models"
-"""The package whose modules register the built-in model kinds (`register_model`): imported by
-name the first time a kind is looked up, so the configuration layer depends on no network."""
+BUILTIN_MODELS = "detach.models.configs"
+"""The torch-free module of the built-in model kinds' config classes, which registers them
+(`register_model_kind`) when imported: imported by name the first time a kind is looked up, so
+the configuration layer depends on no network and imports no torch."""
 MODEL_KIND_ENTRY_POINTS = "detach.model_kinds"
 """Entry-point group of installed add-on packages: each entry names a model kind's module (or
 its config class); loading it registers the kind. A model YAML may instead give
@@ -213,14 +218,20 @@ _KIND_CLASSES: dict[str, type["ModelCfg"]] = {}
 
 
 def register_model_kind(kind: str, config_class: type["ModelCfg"] | None) -> None:
-    """Map a model kind to its config class; called by `register_model`. None removes the kind
-    and the `package.module:Class` names that resolved to its class."""
+    """Map a model kind to its config class; called for the built-in kinds by `BUILTIN_MODELS`
+    and for every kind by `register_model`. None removes the kind and the `package.module:Class`
+    names that resolved to its class."""
     if config_class is not None:
         _KIND_CLASSES[kind] = config_class
         return
     removed = _KIND_CLASSES.pop(kind, None)
     for name in [k for k, cls in _KIND_CLASSES.items() if cls is removed and ":" in k]:
         del _KIND_CLASSES[name]
+
+
+def kind_of(config_class: type["ModelCfg"]) -> str:
+    """The kind a config class declares: the default of its `kind` field."""
+    return next(f.default for f in dataclasses.fields(config_class) if f.name == "kind")
 
 
 def registered_model_kinds() -> dict[str, type["ModelCfg"]]:
@@ -239,7 +250,7 @@ def registered_model_kinds() -> dict[str, type["ModelCfg"]]:
 @dataclass(frozen=True)
 class ModelCfg:
     """What every network of the study reads; `kind` picks the config class of the network
-    (declared beside it in `detach.models`), which adds that network's own fields."""
+    (a built-in kind's in `detach.models.configs`), which adds that network's own fields."""
 
     kind: str = "mlp"
     adapter_units: tuple[int, ...] = (1024, 512)
@@ -296,17 +307,17 @@ class ModelCfg:
 @dataclass(frozen=True)
 class AmpCfg:
     enabled: bool = True
-    task_reward_weight: float = 0.5
-    style_reward_weight: float = 0.5
+    task_reward_weight: float = ranged(0.5, AT_LEAST_0)
+    style_reward_weight: float = ranged(0.5, AT_LEAST_0)
     disc_hidden: tuple[int, ...] = (1024, 512)
     objective: Literal["lsgan", "logistic"] = "lsgan"
-    grad_penalty: float = 5.0
-    logit_reg: float = 0.01
-    weight_decay: float = 0.0001
-    replay_size: int = 100000
-    batch_size: int = 512
-    learning_rate: float = 0.0001
-    disc_updates: int = 2
+    grad_penalty: float = ranged(5.0, AT_LEAST_0)
+    logit_reg: float = ranged(0.01, AT_LEAST_0)
+    weight_decay: float = ranged(0.0001, AT_LEAST_0)
+    replay_size: int = ranged(100000, AT_LEAST_1)
+    batch_size: int = ranged(512, AT_LEAST_1)
+    learning_rate: float = ranged(0.0001, POSITIVE)
+    disc_updates: int = ranged(2, AT_LEAST_0)
     """Discriminator mini-batch updates after each PPO update."""
     body_parts: tuple[str, ...] = ()
     """Body-part discriminators (CML): e.g. (upper, lower); empty = one whole-body one."""
@@ -320,9 +331,9 @@ class AmpCfg:
 class StagesCfg:
     """DETACH's progressive protocol, in PPO iterations (0 disables a stage)."""
 
-    pretrain: int = 0
-    fusion: int = 0
-    joint: int = 0
+    pretrain: int = ranged(0, AT_LEAST_0)
+    fusion: int = ranged(0, AT_LEAST_0)
+    joint: int = ranged(0, AT_LEAST_0)
 
 
 @dataclass(frozen=True)
@@ -331,30 +342,30 @@ class KeepCheckpointsCfg:
     40-70 MB). The newest is always kept; resuming falls back to the previous one when the
     newest is unreadable, hence more than one by default."""
 
-    last: int = 3
+    last: int = ranged(3, AT_LEAST_0)
     """The newest `last` checkpoints (0 keeps every checkpoint)."""
-    every: int = 500
+    every: int = ranged(500, AT_LEAST_0)
     """Also each checkpoint whose iteration count (iteration + 1) is a multiple of `every`,
     for later evaluation of the learning curve (0: none)."""
 
 
 @dataclass(frozen=True)
 class TrainCfg:
-    max_iterations: int = 1000
-    num_steps_per_env: int = 32
-    save_interval: int = 50
+    max_iterations: int = ranged(1000, AT_LEAST_1)
+    num_steps_per_env: int = ranged(32, AT_LEAST_1)
+    save_interval: int = ranged(50, AT_LEAST_1)
     keep_checkpoints: KeepCheckpointsCfg = KeepCheckpointsCfg()
-    learning_rate: float = 0.0003
+    learning_rate: float = ranged(0.0003, POSITIVE)
     schedule: Literal["fixed", "adaptive"] = "adaptive"
-    desired_kl: float = 0.01
-    gamma: float = 0.99
-    lam: float = 0.95
-    clip_param: float = 0.2
-    entropy_coef: float = 0.0
-    value_loss_coef: float = 1.0
-    num_learning_epochs: int = 5
-    num_mini_batches: int = 4
-    max_grad_norm: float = 1.0
+    desired_kl: float = ranged(0.01, POSITIVE)
+    gamma: float = ranged(0.99, FRACTION)
+    lam: float = ranged(0.95, FRACTION)
+    clip_param: float = ranged(0.2, POSITIVE)
+    entropy_coef: float = ranged(0.0, AT_LEAST_0)
+    value_loss_coef: float = ranged(1.0, AT_LEAST_0)
+    num_learning_epochs: int = ranged(5, AT_LEAST_1)
+    num_mini_batches: int = ranged(4, AT_LEAST_1)
+    max_grad_norm: float = ranged(1.0, POSITIVE)
     clipped_value_loss: bool = True
     """PPO's clipped value loss (rsl-rl's default); TokenHSI trains without (`clip_value: False`)."""
     init_from: str | None = None
@@ -362,7 +373,7 @@ class TrainCfg:
     on validation trials, else its latest) or a checkpoint file. Policy, critic, their
     normalisers and the discriminators are loaded; the optimiser and the iteration count start
     afresh (the progressive protocol: docs/PROTOCOL.md)."""
-    init_action_std: float | None = None
+    init_action_std: float | None = ranged(None, POSITIVE)
     """With `init_from`: the action std the policy starts with, replacing the loaded one (null
     keeps it). At the learning rates a later stage runs at (1e-5, where rsl-rl's adaptive
     schedule holds it) the std parameter moves by ~1e-5 per step, so a stage keeps its source's
@@ -383,9 +394,9 @@ class TrainCfg:
     with the highest LH mean (the first on a tie). Why: which arm pose lets a Follow policy
     reach the box depends on where that policy holds its arms, so one fixed pose favours some
     models and handicaps others (results/laptop/NOTEBOOK.md, "the stage's starting point")."""
-    init_choice_trials: int = 50
+    init_choice_trials: int = ranged(50, AT_LEAST_1)
     """Validation trials per entry of `init_action_mean_choices`."""
-    select_checkpoint_trials: int = 0
+    select_checkpoint_trials: int = ranged(0, AT_LEAST_0)
     """When > 0: after training, every checkpoint the run kept (`save_interval`,
     `keep_checkpoints`) plays this many validation trials of the run's task (an evaluation env
     of its own seed, the same trials for each), and the best (highest LH mean; the newest
@@ -410,14 +421,14 @@ class TrainCfg:
     where nothing ends an episode early (Carry's 1200 steps = 37 PPO iterations of 32 steps),
     every iteration's batch comes from one phase of the same episodes: the approach to the box
     only in the first of each 37 iterations."""
-    critic_warmup_iterations: int = 0
+    critic_warmup_iterations: int = ranged(0, AT_LEAST_0)
     """The first iterations of this run train the critic alone, at
     `critic_warmup_learning_rate`: the policy and every parameter it shares with the critic stay
     as they are (no PPO step on them, no auxiliary or teacher loss), so that a stage started
     from another task's run (`init_from`) has values of its own task before its advantages move
     the policy. At a later stage's learning rate (1e-5) the critic, which shares PPO's
     optimiser, would otherwise fit the new rewards no faster than the policy moves."""
-    critic_warmup_learning_rate: float = 1.0e-3
+    critic_warmup_learning_rate: float = ranged(1.0e-3, POSITIVE)
     """Learning rate of the critic-only iterations (`critic_warmup_iterations`)."""
     per_objective_advantage_norm: bool = False
     """With a multi-head critic (CML), normalise the advantage of each objective before their
@@ -428,15 +439,15 @@ class TrainCfg:
     """Kickstarting (`detach.train.teachers`): skill -> a run folder or checkpoint whose policy
     the student's mean action is pulled toward on that skill's steps, beside PPO, or `oracle`
     (the scripted oracle, a scriptable character only); empty = off."""
-    teacher_weight: float = 1.0
+    teacher_weight: float = ranged(1.0, AT_LEAST_0)
     """Weight of the teachers' loss (mean squared action difference per step)."""
     teacher_only: bool = False
     """With teachers: distil them alone (PPO collects the student's rollouts but does not
     update; the critic and the rewards do not train the policy)."""
-    action_bound_coef: float = 0.0
+    action_bound_coef: float = ranged(0.0, AT_LEAST_0)
     """Weight of a penalty on mean actions beyond +-1.1 (`detach.train.action_bounds`; TokenHSI
     trains with 10); 0 = off."""
-    torch_threads: int = 0
+    torch_threads: int = ranged(0, AT_LEAST_0)
     """torch CPU threads of training, evaluation and play; 0 keeps torch's default (one per core,
     or OMP_NUM_THREADS). Set 1 when two runs share the cores."""
     logger: Literal["none", "tensorboard", "wandb"] = "none"
@@ -456,7 +467,7 @@ class RunConfig:
 
     task_name: str
     model_name: str
-    seed: int
+    seed: int = field(metadata={RANGE: Range(0, 2**32 - 1)})
     device: str
     task: TaskCfg
     sim: SimCfg
@@ -468,76 +479,3 @@ class RunConfig:
     origin: ConfigOrigin = field(default_factory=ConfigOrigin, compare=False, repr=False,
                                  metadata={"dump": False})
     """File and line of every value (errors found after loading still point at them)."""
-
-
-@dataclass(frozen=True)
-class Range:
-    """The values a numeric field accepts: from `low` to `high` (None: unbounded), the ends
-    excluded where `open_low` / `open_high`."""
-
-    low: float | None = None
-    high: float | None = None
-    open_low: bool = False
-    open_high: bool = False
-
-    def admits(self, value: float) -> bool:
-        if value != value or value in (float("inf"), float("-inf")):  # NaN, or an end no setting can use
-            return False
-        if self.low is not None and (value <= self.low if self.open_low else value < self.low):
-            return False
-        return self.high is None or (value < self.high if self.open_high else value <= self.high)
-
-    def describe(self) -> str:
-        low, high = _number_text(self.low), _number_text(self.high)
-        if self.high is None:
-            return f"{'>' if self.open_low else '>='} {low}"
-        return f"in {'(' if self.open_low else '['}{low}, {high}{')' if self.open_high else ']'}"
-
-
-def _number_text(value: float | None) -> str:
-    if value is None:
-        return ""
-    return str(int(value)) if float(value).is_integer() else f"{value:g}"
-
-
-POSITIVE = Range(0, open_low=True)
-ENV_COUNT = Range(1, 2**20)
-"""Environments in one process: the paper's 4096 x 256 is far past what one GPU holds; a larger
-number is a typo that would exhaust memory before any error could name it."""
-AT_LEAST_0, AT_LEAST_1 = Range(0), Range(1)
-FRACTION = Range(0, 1)
-VALUE_RANGES: dict[str, Range] = {
-    "seed": Range(0, 2**32 - 1),
-    "sim.num_envs": ENV_COUNT, "sim.physics_dt": POSITIVE, "sim.substeps": AT_LEAST_1,
-    "sim.nthread": AT_LEAST_0, "sim.friction": AT_LEAST_0, "sim.solver_iterations": AT_LEAST_1,
-    "sim.nconmax": AT_LEAST_1, "sim.njmax": AT_LEAST_1,
-    "env.episode_length": AT_LEAST_1, "env.success_threshold": POSITIVE, "env.max_transition_steps": AT_LEAST_1,
-    "env.termination_height": AT_LEAST_0, "env.traj_fail_distance": POSITIVE, "env.mixed_init_prob": FRACTION,
-    "env.mid_task_init_prob": FRACTION, "env.subtask_start_prob": FRACTION,
-    "env.history_self": AT_LEAST_1, "env.history_env": AT_LEAST_1, "env.amp_obs_steps": AT_LEAST_1,
-    "env.height_map.grid": AT_LEAST_1, "env.height_map.spacing": POSITIVE,
-    "env.trajectory.num_samples": AT_LEAST_1, "env.trajectory.sample_dt": POSITIVE,
-    "env.trajectory.num_verts": Range(2), "env.trajectory.speed_min": AT_LEAST_0,
-    "env.trajectory.speed_max": AT_LEAST_0, "env.trajectory.sharp_turn_prob": FRACTION,
-    "env.follow_on_path_frac": FRACTION,
-    "rewards.subtask_bonus": AT_LEAST_0, "rewards.done_subtask_reward": AT_LEAST_0,
-    "eval.trials": AT_LEAST_1, "eval.num_envs": ENV_COUNT, "eval.max_transition_steps": AT_LEAST_1,
-    "eval.confidence": Range(0, 1, open_low=True, open_high=True),
-    "train.max_iterations": AT_LEAST_1, "train.num_steps_per_env": AT_LEAST_1, "train.save_interval": AT_LEAST_1,
-    "train.keep_checkpoints.last": AT_LEAST_0, "train.keep_checkpoints.every": AT_LEAST_0,
-    "train.learning_rate": POSITIVE, "train.desired_kl": POSITIVE, "train.gamma": FRACTION, "train.lam": FRACTION,
-    "train.clip_param": POSITIVE, "train.entropy_coef": AT_LEAST_0, "train.value_loss_coef": AT_LEAST_0,
-    "train.num_learning_epochs": AT_LEAST_1, "train.num_mini_batches": AT_LEAST_1,
-    "train.max_grad_norm": POSITIVE, "train.init_action_std": POSITIVE, "train.torch_threads": AT_LEAST_0,
-    "train.init_choice_trials": AT_LEAST_1, "train.select_checkpoint_trials": AT_LEAST_0,
-    "train.teacher_weight": AT_LEAST_0, "train.critic_warmup_iterations": AT_LEAST_0,
-    "train.critic_warmup_learning_rate": POSITIVE, "train.action_bound_coef": AT_LEAST_0,
-    "train.stages.pretrain": AT_LEAST_0, "train.stages.fusion": AT_LEAST_0, "train.stages.joint": AT_LEAST_0,
-    "train.amp.task_reward_weight": AT_LEAST_0, "train.amp.style_reward_weight": AT_LEAST_0,
-    "train.amp.grad_penalty": AT_LEAST_0, "train.amp.logit_reg": AT_LEAST_0, "train.amp.weight_decay": AT_LEAST_0,
-    "train.amp.replay_size": AT_LEAST_1, "train.amp.batch_size": AT_LEAST_1,
-    "train.amp.learning_rate": POSITIVE, "train.amp.disc_updates": AT_LEAST_0,
-}
-"""Numeric fields whose type alone admits values a run cannot use (0 environments, a
-negative iteration count, a probability above 1), checked when a config is loaded
-(`detach.config`), so that such a value fails in one line before any run folder exists."""
