@@ -12,8 +12,9 @@ name `train` is the training package).
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from detach.lazy_exports import lazy_exports
 
 __version__ = "0.1.0"
 
@@ -80,20 +81,7 @@ _WHERE = {name: module for module, names in PUBLIC.items() for name in names}
 __all__ = ["__version__", *_WHERE]
 
 
-def __getattr__(name: str) -> Any:
-    """Load a public name's module on first use (PEP 562) and keep the name here."""
-    module = _WHERE.get(name)
-    if module is None:
-        raise AttributeError(f"module 'detach' has no attribute {name!r}")
-    owner, attribute = importlib.import_module(module), RENAMED.get(name, name)
-    value = (getattr(owner, attribute) if hasattr(owner, attribute)
-             else importlib.import_module(f"{module}.{attribute}"))  # a module: detach.envs.observations
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *__all__})
+__getattr__, __dir__ = lazy_exports(__name__, _WHERE, globals(), RENAMED)
 
 
 if TYPE_CHECKING:  # what type checkers and editors see; tests/test_architecture.py keeps it equal to PUBLIC

@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("detach", "scene_builder", "server")
 
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("config", ("detach.config", "detach.torch_math", "detach.host_sync")),
+    ("config", ("detach.config", "detach.torch_math", "detach.host_sync", "detach.lazy_exports")),
     ("runfolder", ("detach.runfolder",)),
     ("assets", ("scene_builder",)),
     ("character", ("detach.character",)),

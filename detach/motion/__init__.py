@@ -16,8 +16,9 @@ The names below are imported on first use (PEP 562), so that importing a submodu
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from detach.lazy_exports import lazy_exports
 
 if TYPE_CHECKING:
     from detach.motion.builtin import builtin_clips, default_motion_lib
@@ -35,10 +36,5 @@ _HOMES = {
 __all__ = sorted(_HOMES)
 
 
-def __getattr__(name: str) -> Any:
-    home = _HOMES.get(name)
-    if home is None:
-        raise AttributeError(f"module 'detach.motion' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"detach.motion.{home}"), name)
-    globals()[name] = value
-    return value
+__getattr__, __dir__ = lazy_exports(__name__, {name: f"{__name__}.{home}" for name, home in _HOMES.items()},
+                                    globals())
