@@ -25,7 +25,7 @@ from typing import Any, Sequence, Union
 
 import numpy as np
 
-from detach.runfolder.messages import MAX_COORD, MAX_TEXT, SceneTarget
+from detach.runfolder.messages import MAX_COORD, MAX_TEXT, ContractError, SceneTarget, finite_coords
 
 RGB = tuple[int, int, int]
 
@@ -184,12 +184,10 @@ def task_markers(targets: Sequence[SceneTarget], state: TaskState) -> list[Marke
 # --- recorded frames (untrusted) -----------------------------------------------------------
 def _finite(value: Any, n: int) -> np.ndarray | None:
     """`value` as n finite numbers within `MAX_COORD`, else None."""
-    if not isinstance(value, (list, tuple)) or len(value) != n:
+    try:
+        return np.asarray(finite_coords(value, n), dtype=np.float64)
+    except ContractError:
         return None
-    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
-        return None
-    a = np.asarray(value, dtype=np.float64)
-    return a if np.isfinite(a).all() and (np.abs(a) <= MAX_COORD).all() else None
 
 
 def parse_path(value: Any) -> np.ndarray | None:

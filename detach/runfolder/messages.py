@@ -256,8 +256,10 @@ def _as_list(value: Any) -> list:
     return value if isinstance(value, list) else []
 
 
-def _coords(value: Any, n: int, default: tuple[float, ...] | None = None, at_least: bool = False) -> list[float]:
-    """`value` as n (or, `at_least`, n or more) finite numbers within MAX_COORD; `default` when absent."""
+def finite_coords(value: Any, n: int, default: tuple[float, ...] | None = None,
+                  at_least: bool = False) -> list[float]:
+    """`value` (from a file anyone may have written) as n (or, `at_least`, n or more) finite
+    numbers within MAX_COORD, else ContractError; `default` when absent."""
     if value is None and default is not None:
         return list(default)
     if not isinstance(value, (list, tuple)) or (len(value) < n if at_least else len(value) != n):
@@ -272,30 +274,33 @@ def _salvage_object(i: int, o: Any) -> SceneObject:
     if not isinstance(o, dict):
         raise ContractError(f"expected an object, found {type(o).__name__}")
     return SceneObject(name=str(o.get("name", f"object_{i}"))[:MAX_TEXT], category=str(o.get("category", "")),
-                       mesh=str(o.get("mesh") or ""), pos=_coords(o.get("pos"), 3, (0.0, 0.0, 0.0)),
-                       quat=_coords(o.get("quat"), 4, (1.0, 0.0, 0.0, 0.0)),
-                       bbox=_coords(o.get("bbox"), 3, (0.3, 0.3, 0.3)), static=bool(o.get("static", True)))
+                       mesh=str(o.get("mesh") or ""), pos=finite_coords(o.get("pos"), 3, (0.0, 0.0, 0.0)),
+                       quat=finite_coords(o.get("quat"), 4, (1.0, 0.0, 0.0, 0.0)),
+                       bbox=finite_coords(o.get("bbox"), 3, (0.3, 0.3, 0.3)),
+                       static=bool(o.get("static", True)))
 
 
 def _salvage_path(way: Any) -> list[list[float]]:
-    return [_coords(p, 2, at_least=True)[:2] for p in (way if isinstance(way, list) else [way])]
+    return [finite_coords(p, 2, at_least=True)[:2] for p in (way if isinstance(way, list) else [way])]
 
 
 def _salvage_target(t: Any) -> SceneTarget:
     sub, skill = need_key(t, "subtask", int, "target"), need_key(t, "skill", str, "target")
     color = t.get("color")
     try:
-        rgb = [int(min(max(c, 0), 255)) for c in _coords(color, 3)]
+        rgb = [int(min(max(c, 0), 255)) for c in finite_coords(color, 3)]
     except ContractError:
         rgb = [220, 40, 40]  # no colour, or a bad one: the default
-    return SceneTarget(sub, skill[:MAX_TEXT], _coords(t.get("pos"), 3), rgb)
+    return SceneTarget(sub, skill[:MAX_TEXT], finite_coords(t.get("pos"), 3), rgb)
 
 
 def _salvage_geom(g: Any) -> BodyGeom:
     if not isinstance(g, dict):
         raise ContractError(f"expected an object, found {type(g).__name__}")
-    return BodyGeom(str(g.get("body", "")), str(g.get("type", "")), _coords(g.get("size"), 1, (0.05,), at_least=True),
-                    _coords(g.get("pos"), 3, (0.0, 0.0, 0.0)), _coords(g.get("quat"), 4, (1.0, 0.0, 0.0, 0.0)))
+    return BodyGeom(str(g.get("body", "")), str(g.get("type", "")),
+                    finite_coords(g.get("size"), 1, (0.05,), at_least=True),
+                    finite_coords(g.get("pos"), 3, (0.0, 0.0, 0.0)),
+                    finite_coords(g.get("quat"), 4, (1.0, 0.0, 0.0, 0.0)))
 
 
 def _vec(data: Any, key: str, n: int, where: str) -> list[float]:
