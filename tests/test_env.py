@@ -122,6 +122,32 @@ def test_fall_terminates_and_resets():
     assert env.state.root_pos[i, 2] == pytest.approx(0.94, abs=1e-3)
 
 
+def _steps_to_first_fall(env, seed: int = 1) -> int:
+    gen = torch.Generator().manual_seed(seed)
+    for t in range(300):
+        _, _, dones, extras = env.step(torch.rand(1, env.num_actions, generator=gen) * 2 - 1)
+        if dones.any():
+            assert extras["episode_progress"]["fell"].all()
+            return t
+    raise AssertionError("random PD targets should topple the humanoid within 10 s")
+
+
+def test_body_fall_rule_ends_the_episode_when_a_body_touches_down_before_the_pelvis():
+    """`env.fall_rule: body` (AMP's early termination): a knee, hand or head at the floor ends
+    the episode while the pelvis is still up; the default rule waits for the pelvis."""
+    pelvis = make_env(cfg_of("follow", "humanoid.init_rot_randomize=false", "env.init=default"), num_envs=1)
+    body = make_env(cfg_of("follow", "humanoid.init_rot_randomize=false", "env.init=default",
+                           "env.fall_rule=body"), num_envs=1)
+    t_pelvis, t_body = _steps_to_first_fall(pelvis), _steps_to_first_fall(body)
+    assert t_body < t_pelvis
+    replay = make_env(pelvis.cfg, num_envs=1)  # the same start and actions, still running at t_body
+    gen = torch.Generator().manual_seed(1)
+    for _ in range(t_body + 1):
+        _, _, dones, _ = replay.step(torch.rand(1, replay.num_actions, generator=gen) * 2 - 1)
+    heights = replay.state.body_pos[0, :, 2]
+    assert not dones.any() and heights[0] > 0.15 and bool((heights < 0.15).any())
+
+
 def test_traj_deviation_terminates():
     env = make_env(_two_point_plan_cfg(), num_envs=1)
     env.tracker.subtask[:] = 1  # trajectory 1 runs to x = 8 m at 1.45 m/s; standing still falls behind

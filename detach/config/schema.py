@@ -141,6 +141,10 @@ class EnvCfg:
     success_threshold: float = ranged(0.3, POSITIVE)
     max_transition_steps: int = ranged(60, AT_LEAST_1)
     termination_height: float = ranged(0.15, AT_LEAST_0)
+    fall_rule: Literal["pelvis", "body"] = "pelvis"
+    """When an episode ends as a fall: `pelvis`, the pelvis below `termination_height`; `body`,
+    any body but the feet below it (AMP's and TokenHSI's early termination: a knee, hand or
+    head on the floor ends the episode, so a policy cannot learn to crawl or kneel)."""
     traj_fail_distance: float = ranged(4.0, POSITIVE)
     init: Literal["default", "random", "mixed"] = "mixed"
     mixed_init_prob: float = ranged(0.5, FRACTION)

@@ -1,6 +1,7 @@
 """Episode ends: falls, the skills' own failure conditions, time limits and IET.
 
-`fell`: the pelvis below `env.termination_height`. Every registered skill may add named
+`fell`: the pelvis below `env.termination_height`, or with `env.fall_rule: body` any body but
+the feet (the heights of the bodies' origins: a hand, knee or head on the floor). Every registered skill may add named
 conditions (follow: `traj_failed`, the pelvis more than `env.traj_fail_distance` from its
 reference point), evaluated where the env is on that skill; the names are the same for every
 plan (false where a skill is absent), so logs and evaluators see stable keys. Terminations
@@ -13,9 +14,13 @@ from __future__ import annotations
 
 import torch
 
+from detach.character.body import BODY_NAMES, FEET
 from detach.config.schema import EnvCfg
 from detach.skills import Skill, skill_class, skill_names
 from detach.skills.context import SkillContext
+from detach.torch_math import index_on
+
+_NOT_FEET = tuple(i for i, b in enumerate(BODY_NAMES) if b not in FEET)
 
 
 class Terminations:
@@ -26,7 +31,7 @@ class Terminations:
 
     def compute(self, ctx: SkillContext) -> dict[str, torch.Tensor]:
         """{name: bool [N]} for every condition in `names`."""
-        out = {"fell": ctx.state.root_pos[:, 2] < self.cfg.termination_height}
+        out = {"fell": self.fell(ctx)}
         for name in self.names[1:]:
             out[name] = torch.zeros_like(out["fell"])
         for i, skill in self.skills.items():
@@ -34,6 +39,12 @@ class Terminations:
             for name, value in skill.terminations(ctx).items():
                 out[name] = out[name] | (active & value)
         return out
+
+    def fell(self, ctx: SkillContext) -> torch.Tensor:
+        if self.cfg.fall_rule == "pelvis":
+            return ctx.state.root_pos[:, 2] < self.cfg.termination_height
+        low = ctx.state.body_pos[:, :, 2] < self.cfg.termination_height
+        return low.index_select(1, index_on(_NOT_FEET, low.device)).any(dim=1)
 
     def outcome(self, ended: dict[str, torch.Tensor], timeout: torch.Tensor, last_done: torch.Tensor
                 ) -> tuple[torch.Tensor, torch.Tensor]:
