@@ -50,6 +50,7 @@ def test_body_positions_are_mujoco_fk(clips):
 @pytest.mark.parametrize("name", ["idle_breathe", "idle_shift", "walk_1p42", "walk_1p48", "walk_1p90",
                                   "turn_left_90", "turn_right_90", "walk_turn_left", "walk_turn_right", "step_up_0p30",
                                   "step_up_0p45", "step_up_0p50", "sit_down", "sit_stand_up",
+                                  "sit_down_0p35", "sit_stand_up_0p35", "sit_down_0p25", "sit_stand_up_0p25",
                                   "carry_walk", "carry_stand"])
 def test_plausible(clips, name):
     c = clips[name]
@@ -87,6 +88,18 @@ def test_sit_and_step_targets(clips):
         step = clips[f"step_up_0p{round(height * 100):02d}"]
         feet = step.body_pos[-1, [BODY_NAMES.index("left_foot"), BODY_NAMES.index("right_foot")], 2]
         assert feet == pytest.approx([height + 0.075] * 2, abs=0.005)  # both ankles above the step top
+
+
+@pytest.mark.parametrize("seat,task", [(0.45, "LH1's chair"), (0.35, "LH2's sofa"), (0.25, "LH3's bed")])
+def test_sit_clips_at_every_lh_seat_height(clips, seat, task):
+    """The Sit clips reach each LH task's seat, sitting down and standing up: the pelvis ends
+    (or starts) 0.1 m above the seat's top, the sit target's height above it."""
+    suffix = "" if seat == 0.45 else f"_0p{round(seat * 100):02d}"
+    for name, frame in ((f"sit_down{suffix}", -1), (f"sit_stand_up{suffix}", 0)):
+        c = clips[name]
+        top = c.meta["props"][0]["center"][2] + c.meta["props"][0]["half"][2]
+        assert top == pytest.approx(seat), (task, name)
+        assert c.root_pos[frame, 2] == pytest.approx(seat + 0.1, abs=0.01), (task, name)
 
 
 def test_a_step_up_clip_at_the_climb_tasks_height(clips):

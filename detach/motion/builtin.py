@@ -19,6 +19,8 @@ on a laptop; they are not human motion capture. Import real clips with `detach-m
 | walk_turn_left, walk_turn_right | turn | walking 1.2 m/s on a curve (0.5 rad/s) |
 | step_up_0p30, _0p45, _0p50 | step_up | stepping onto a 0.30 / 0.45 / 0.50 m high step (prop in meta) |
 | sit_down, sit_stand_up | sit | sitting onto a 0.45 m seat (prop in meta) / standing back up |
+| sit_down_0p35, sit_stand_up_0p35 | sit | the same onto a 0.35 m seat (LH2's sofa) |
+| sit_down_0p25, sit_stand_up_0p25 | sit | the same onto a 0.25 m seat (LH3's bed, 0.25 m above the loft's platform) |
 | carry_walk, carry_stand | carry | both arms forward holding an imaginary box, walking 1.0 m/s / standing |
 """
 
@@ -37,7 +39,7 @@ from detach.motion.placement import Terrain, pose_clip_arrays
 from detach.motion.rotations import quat_from_yaw_pitch
 
 FPS = 30.0
-BUILTIN_VERSION = 2
+BUILTIN_VERSION = 3
 _IDX = {n: i for i, n in enumerate(DOF_NAMES)}
 _SIDES = ("left", "right")
 
@@ -281,26 +283,35 @@ def _step_up(name: str, height: float, reach: float = 0.45, lean: float = 0.0) -
 
 
 SEAT_HEIGHT = 0.45
+"""The seat of the `sit_down` / `sit_stand_up` clips (LH1's and the sit task's chair)."""
 
 
-def _sit_keys(down: bool) -> list[dict]:
+def _sit_keys(down: bool, seat: float) -> list[dict]:
+    """Pelvis keys (x, z, pitch) of sitting onto a `seat` m high seat behind the feet: the
+    pelvis goes back and down through the same two intermediate poses, scaled to the seat."""
     a0 = _leg().ankle
     feet = dict(left=(0.0, a0), right=(0.0, a0))
-    seat_z = SEAT_HEIGHT + 0.10  # pelvis 0.1 m above the seat (the sit target); capsule r = 0.09
+    seat_z = seat + 0.10  # pelvis 0.1 m above the seat (the sit target); capsule r = 0.09
+    d = SEAT_HEIGHT - seat  # > 0: a lower seat, reached further back, lower and more bent
+    back = 0.40 + 0.5 * d
     standing = [(0.0, 0.93, 0.0), (0.0, 0.93, 0.02)]
-    lowering = [(-0.10, 0.80, 0.45), (-0.32, 0.62, 0.40), (-0.40, seat_z + 0.01, 0.18)]
-    seated = [(-0.40, seat_z, 0.12), (-0.40, seat_z, 0.10)]
+    lowering = [(-0.10, 0.80 - 0.5 * d, 0.45 + 0.5 * d), (-0.32 - 0.4 * d, 0.62 - d, 0.40 + 0.5 * d),
+                (-back, seat_z + 0.01, 0.18)]
+    seated = [(-back, seat_z, 0.12), (-back, seat_z, 0.10)]
     if down:
         poses, times = standing + lowering + seated, [0.0, 0.4, 1.0, 1.6, 1.9, 2.3, 3.2]
     else:
-        poses = seated + [(-0.34, seat_z + 0.02, 0.55), (-0.12, 0.76, 0.48), (0.0, 0.91, 0.10)] + standing[::-1]
+        rise = [(-back + 0.06, seat_z + 0.02, 0.55 + 0.5 * d), (-0.12, 0.76 - 0.5 * d, 0.48 + 0.5 * d),
+                (0.0, 0.91, 0.10)]
+        poses = seated + rise + standing[::-1]
         times = [0.0, 0.4, 1.0, 1.6, 2.2, 2.6, 3.0]
     return [dict(t=tt, pelvis=p, **feet) for tt, p in zip(times, poses)]
 
 
-def _sit(name: str, down: bool) -> MotionClip:
-    """Sit down onto (or stand up from) a 0.45 m seat behind the character; feet stay planted."""
-    keys = _sit_keys(down)
+def _sit(name: str, down: bool, seat: float = SEAT_HEIGHT) -> MotionClip:
+    """Sit down onto (or stand up from) a `seat` m high seat behind the character; feet stay
+    planted."""
+    keys = _sit_keys(down, seat)
     t = np.arange(int(round(keys[-1]["t"] * FPS)) + 1) / FPS
     q, pitch = _key_legs(keys, t)
     flex = np.clip(-q["left_hip_y"] / 1.5, 0.0, 1.0)  # 0 standing .. 1 seated
@@ -309,9 +320,10 @@ def _sit(name: str, down: bool) -> MotionClip:
     q["abdomen_y"] = 0.04 + 0.1 * flex
     q["neck_y"] = -0.1 * flex
     # seat 0.5 m deep whose front edge is 0.1 m ahead of the seated pelvis
-    seat = Terrain([((-0.55, 0.0, SEAT_HEIGHT / 2), (0.25, 0.24, SEAT_HEIGHT / 2))])
-    return _finish(name, "sit", q, np.zeros(len(t)), pitch, seat, start_xy=(keys[0]["pelvis"][0], 0.0),
-                   notes=f"seat {SEAT_HEIGHT:.2f} m high behind the character")
+    x_seat = keys[-1]["pelvis"][0] if down else keys[0]["pelvis"][0]
+    terrain = Terrain([((x_seat - 0.15, 0.0, seat / 2), (0.25, 0.24, seat / 2))])
+    return _finish(name, "sit", q, np.zeros(len(t)), pitch, terrain, start_xy=(keys[0]["pelvis"][0], 0.0),
+                   notes=f"seat {seat:.2f} m high behind the character")
 
 
 _RECIPES = (
@@ -330,6 +342,10 @@ _RECIPES = (
     lambda: _step_up("step_up_0p50", 0.50),                        # the climb task's platform
     lambda: _sit("sit_down", down=True),
     lambda: _sit("sit_stand_up", down=False),
+    lambda: _sit("sit_down_0p35", down=True, seat=0.35),          # LH2's sofa
+    lambda: _sit("sit_stand_up_0p35", down=False, seat=0.35),
+    lambda: _sit("sit_down_0p25", down=True, seat=0.25),          # LH3's bed, above the loft's platform
+    lambda: _sit("sit_stand_up_0p25", down=False, seat=0.25),
     lambda: _walk("carry_walk", "carry", 1.0, cycles=4, g=_Gait(hip_front=0.34, hip_back=0.26, pitch=0.02, carry=True),
                   notes="carrying an imaginary box, 1.0 m/s"),
     lambda: _idle("carry_stand", skill="carry", duration=4.0, carry=True),
