@@ -3,6 +3,9 @@
     python benchmarks/bench_iteration_split.py [--models mlp detach tokenhsi cml]
         [--characters puppet humanoid] [--reps 3] [overrides ...]
 
+A model may carry its own overrides after `@` (comma-separated), to time a change against the
+code without it in one run, e.g. `--models mlp detach detach@train.reuse_frozen_features=false`.
+
 Follow task, `sim.num_envs` x `train.num_steps_per_env` (64 x 32, the training defaults), one
 torch thread. Rollout: the env's step, the policy's inference (`alg.act`: actor and critic),
 the AMP discriminator's style reward, the rest (storage, GAE). Update: PPO's epochs
@@ -59,8 +62,10 @@ class Clock:
 class Variant:
     """One model on one character, its runner built and warmed up, its parts instrumented."""
 
-    def __init__(self, model: str, character: str, overrides: list[str]) -> None:
-        self.name = model
+    def __init__(self, spec: str, character: str, overrides: list[str]) -> None:
+        self.name = spec
+        model, _, own = spec.partition("@")
+        overrides = [*overrides, *(o for o in own.split(",") if o)]
         self.character = character
         self.context = nullcontext
         """A code state to build and time the variant in (e.g. one patching a change back out)."""

@@ -434,6 +434,11 @@ class TrainCfg:
     optimiser, would otherwise fit the new rewards no faster than the policy moves."""
     critic_warmup_learning_rate: float = ranged(1.0e-3, POSITIVE)
     """Learning rate of the critic-only iterations (`critic_warmup_iterations`)."""
+    reuse_frozen_features: bool = True
+    """While DETACH's encoders are frozen (stage 2), run them once per update over the rollout
+    and let every mini-batch read their outputs, instead of running them again in each of PPO's
+    mini-batches and the auxiliary pass. The same method (equal up to float summation order;
+    a test holds it); off only to measure the difference (benchmarks/bench_iteration_split.py)."""
     per_objective_advantage_norm: bool = False
     """With a multi-head critic (CML), normalise the advantage of each objective before their
     weighted sum; otherwise the weighted sum is normalised as one."""

@@ -148,11 +148,15 @@ class DetachTrunk(nn.Module):
         return no_columns(self.out_dim)
 
     # ----- forward -----
-    def encode(self, groups: dict[str, torch.Tensor]) -> DetachFeatures:
+    def encode(self, groups: dict[str, torch.Tensor], frozen: dict[str, torch.Tensor] | None = None
+               ) -> DetachFeatures:
+        """`frozen`: z_env / z_self already computed by the frozen encoders on these inputs
+        (`DetachModel.frozen_features`), used instead of running the encoders again."""
         x_env, x_self = groups["env"], groups["self"]
-        z_env = self.env_encoder(x_env) if self.env_encoder else None
+        frozen = frozen or {}
+        z_env = frozen["z_env"] if "z_env" in frozen else (self.env_encoder(x_env) if self.env_encoder else None)
         f_env = self.proj_env(z_env if z_env is not None else x_env)
-        z_self = self.self_encoder(x_self) if self.self_encoder else None
+        z_self = frozen["z_self"] if "z_self" in frozen else (self.self_encoder(x_self) if self.self_encoder else None)
         f_self = self.proj_self(z_self if z_self is not None else x_self)
         fusion = self.fusion(f_env, f_self)
         return DetachFeatures(
@@ -280,7 +284,7 @@ class DetachModel(StructuredModel):
     _forward_cache: tuple[TensorDict, dict[str, torch.Tensor], DetachFeatures] | None = None
 
     def trunk_latent(self, obs: TensorDict, groups: dict[str, torch.Tensor]) -> torch.Tensor:
-        feats = self.trunk.encode(groups)
+        feats = self.trunk.encode(groups, self._attached_features(obs))
         # Keep the encoder/fusion outputs of a training forward pass for aux_losses on the same obs.
         self._forward_cache = (obs, groups, feats) if torch.is_grad_enabled() and self.training else None
         return self.trunk.latent(groups, feats)
@@ -289,7 +293,39 @@ class DetachModel(StructuredModel):
         cache, self._forward_cache = self._forward_cache, None
         if reuse_forward and cache is not None and cache[0] is obs:
             return self.trunk.aux_losses(cache[1], self.cfg.regularizers, cache[2])
-        return self.trunk.aux_losses(self.normalized_groups(obs), self.cfg.regularizers)
+        groups = self.normalized_groups(obs)
+        frozen = self._attached_features(obs)
+        feats = self.trunk.encode(groups, frozen) if frozen else None
+        return self.trunk.aux_losses(groups, self.cfg.regularizers, feats)
+
+    # ----- frozen encoders (stage 2): computed once per update -----
+    def frozen_features_key(self) -> str:
+        """The key under which `frozen_features` are attached to observations: this model's own
+        (a critic with a trunk of its own has other encoders and must not read them)."""
+        return f"frozen_features_{id(self)}"
+
+    @torch.no_grad()
+    def frozen_features(self, obs: TensorDict) -> TensorDict | None:
+        """z_env and z_self of every sample of `obs` [B] while both encoders are frozen (stage 2),
+        else None. A trainer attaches them to the rollout's observations under
+        `frozen_features_key()` for the update, so PPO's epochs and the auxiliary pass read them
+        instead of running the frozen encoders again on every mini-batch (the same numbers up to
+        float summation order: the encoders see the same normalised inputs, the normaliser does
+        not move during an update)."""
+        encoders = self.trunk.encoder_modules()
+        if not encoders or any(p.requires_grad for m in encoders for p in m.parameters()):
+            return None
+        groups = self.normalized_groups(obs)
+        out = {}
+        if self.trunk.env_encoder is not None:
+            out["z_env"] = self.trunk.env_encoder(groups["env"])
+        if self.trunk.self_encoder is not None:
+            out["z_self"] = self.trunk.self_encoder(groups["self"])
+        return TensorDict(out, batch_size=obs.batch_size)
+
+    def _attached_features(self, obs: TensorDict) -> dict[str, torch.Tensor] | None:
+        feats = obs.get(self.frozen_features_key(), None)
+        return None if feats is None else dict(feats.items())
 
     def aux_loss(self, obs: TensorDict, stage: str, reuse_forward: bool = False) -> torch.Tensor:
         return combine_aux_losses(self.aux_losses(obs, reuse_forward), stage, self.cfg.regularizers)

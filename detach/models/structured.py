@@ -276,6 +276,15 @@ class StructuredModel(MLPModel):
         """Auxiliary loss terms; none for the baselines."""
         return {}
 
+    def frozen_features(self, obs: TensorDict) -> TensorDict | None:
+        """What this model's frozen layers compute from `obs` [B], for a trainer to attach to
+        the rollout's observations once per update (`frozen_features_key`); None: nothing
+        frozen to reuse (DetachModel's stage-2 encoders are the one case)."""
+        return None
+
+    def frozen_features_key(self) -> str:
+        return f"frozen_features_{id(self)}"
+
     def head_parameters(self) -> Iterator[nn.Parameter]:
         """The adapter MLP and the distribution's parameters (e.g. the action std)."""
         yield from self.mlp.parameters()

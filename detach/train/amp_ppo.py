@@ -91,6 +91,8 @@ class AmpPPO(PPO):
         """Of those, the updates still to come (set when training starts or resumes)."""
         self.critic_warmup_lr = 1.0e-3
         """Their learning rate (`train.critic_warmup_learning_rate`)."""
+        self.reuse_frozen_features = True
+        """Run the actor's frozen layers once per update (`train.reuse_frozen_features`)."""
         self.stage = "ppo"
         heads = tuple(getattr(critic, "value_objectives", ()) or ())
         self.num_objectives = len(heads) if heads else int(getattr(critic, "num_objectives", 1))
@@ -199,22 +201,52 @@ class AmpPPO(PPO):
 
     # ------------------------------------------------------------------ learning
     def update(self) -> dict[str, float]:
-        obs = self.storage.observations.flatten(0, 1)
+        try:
+            return self._update()
+        finally:
+            key = self.actor.frozen_features_key()
+            if key in self.storage.observations.keys():
+                del self.storage.observations[key]  # the next rollout's steps carry no such key
+
+    def _attach_frozen_features(self) -> None:
+        """Run the actor's frozen layers once over the rollout (DETACH's encoders in stage 2) and
+        attach their outputs to the stored observations for this update, so that the passes
+        over mini-batches read them instead of running those layers again in every mini-batch
+        (`train.reuse_frozen_features`). Called before PPO's epochs and again before the
+        auxiliary and teachers' passes, since PPO's update ends by moving the input normalisers."""
+        if not self.reuse_frozen_features:
+            return
+        obs = self.storage.observations
+        key = self.actor.frozen_features_key()
+        if key in obs.keys():
+            del obs[key]  # computed before the normalisers moved
+        feats = self.actor.frozen_features(obs.flatten(0, 1))
+        if feats is not None:
+            obs[key] = feats.reshape(obs.batch_size)
+
+    def _update(self) -> dict[str, float]:
         warmup = False
         if self.stage == "pretrain" or self.teacher_only:
             self.storage.clear()
             losses: dict[str, float] = {}
-        elif self.critic_warmup_left > 0:
-            warmup = True
-            self.critic_warmup_left -= 1
-            losses = self._update_critic_alone()
         else:
-            losses = super().update()
+            self._attach_frozen_features()
+            if self.critic_warmup_left > 0:
+                warmup = True
+                self.critic_warmup_left -= 1
+                losses = self._update_critic_alone()
+            else:
+                losses = super().update()
         if self.amp_enabled:
             losses.update(self._update_discriminators())
-        if self.aux_loss_fn is not None and not warmup:
+        aux = self.aux_loss_fn is not None and not warmup
+        teach = self.policy_loss_fn is not None and self.stage != "pretrain" and not warmup
+        if aux or teach:
+            self._attach_frozen_features()
+        obs = self.storage.observations.flatten(0, 1)
+        if aux:
             losses.update(self._update_aux(obs))
-        if self.policy_loss_fn is not None and self.stage != "pretrain" and not warmup:
+        if teach:
             losses.update(self._minimise(self.policy_loss_fn, obs, self.num_learning_epochs))
         count = max(self._reward_sums["count"], 1)
         losses["reward_task"] = self._reward_sums["task"] / count

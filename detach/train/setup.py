@@ -132,6 +132,7 @@ def build_runner(cfg: RunConfig, checkpoint_dir: Path | None, device: str, log: 
             plan=[canonical_name(s) for s in cfg.task.plan], weights=cfg.train.amp.skill_weights, skills=env.skills)
     alg.critic_warmup_iterations = cfg.train.critic_warmup_iterations
     alg.critic_warmup_lr = cfg.train.critic_warmup_learning_rate
+    alg.reuse_frozen_features = cfg.train.reuse_frozen_features
     on_stage, detach_models = _stage_hook(runner)
     runner.on_stage = on_stage
     if detach_models:
