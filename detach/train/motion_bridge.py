@@ -17,7 +17,8 @@ import torch.nn.functional as F
 from detach.character.body import DOF_NAMES, KEY_BODIES
 from detach.envs.observations import AMP_DIM, NUM_DOF, amp_frame
 from detach.motion import MotionLib, MotionState
-from detach.skills import run_skills, skill_class
+from detach.config.schema import RunConfig
+from detach.skills import canonical_name, run_skills, skill_class
 from detach.torch_math import heading_matrix, yaw_of
 
 
@@ -78,9 +79,29 @@ def amp_reference_sampler(lib: MotionLib, steps: int, dt: float, conditional: bo
     return sample
 
 
-def reset_reference_sampler(lib: MotionLib) -> Callable[[int, torch.Generator], dict]:
-    """Reference-state initialisation source in the format `detach.envs.resets` expects."""
+def start_clip_labels(cfg: RunConfig) -> tuple[str, ...] | None:
+    """The motion labels reference-state starts draw from (`env.init_clips`): the first
+    subtask's skill's, or None for every clip."""
+    if cfg.env.init_clips == "all":
+        return None
+    return skill_class(canonical_name(cfg.task.plan[0])).motion_labels
 
+
+def reset_reference_sampler(lib: MotionLib, labels: Sequence[str] | None = None
+                            ) -> Callable[[int, torch.Generator], dict]:
+    """Reference-state initialisation source in the format `detach.envs.resets` expects.
+
+    `labels`: draw only from clips with these motion labels that need no prop (`meta["props"]`:
+    a step or seat the motion stands or sits on, which the env does not have under a start);
+    None: every clip."""
+    probs = lib.clip_probs(None)
+    if labels is not None:
+        keep = torch.tensor([c.skill in labels and not c.meta.get("props") for c in lib.clips], device=probs.device)
+        if not keep.any():
+            raise ValueError(f"reference-state starts: no clip labelled {sorted(labels)} without a prop "
+                             f"among the {lib.num_clips} clips")
+        probs = torch.where(keep, lib.clip_probs([s for s in labels if s in lib.skills_present]), 0.0)
+        probs = probs / probs.sum()
     own: list[torch.Generator] = []
 
     def sample(n: int, generator: torch.Generator) -> dict[str, torch.Tensor]:
@@ -90,7 +111,7 @@ def reset_reference_sampler(lib: MotionLib) -> Callable[[int, torch.Generator], 
                 seed = int(torch.randint(2**62, (1,), generator=generator, device=generator.device))
                 own.append(torch.Generator(device=lib.device).manual_seed(seed))
             generator = own[0]
-        ids = lib.sample_clips(n, generator=generator)
+        ids = torch.multinomial(probs, n, replacement=True, generator=generator)
         times = lib.sample_times(ids, generator=generator)
         s = lib.state(ids, times)
         R = heading_matrix(yaw_of(s.root_quat))

@@ -1,0 +1,43 @@
+"""Reference-state starts (`env.init: random | mixed`) draw from clips the start can stand in:
+the first subtask's skill's clips without a prop, not a frame on top of a step or on a seat
+that is not there (which started the humanoid 0.5 m in the air or sitting on nothing)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+
+from detach.config import resolve
+from detach.motion.builtin import default_motion_lib
+from detach.train.motion_bridge import reset_reference_sampler, start_clip_labels
+from detach.train.start_library import make_training_env
+
+TASKS = Path(__file__).resolve().parents[1] / "configs" / "tasks"
+
+
+def _start_heights(task: str, *overrides: str) -> torch.Tensor:
+    torch.set_num_threads(1)
+    cfg = resolve(TASKS / f"{task}.yaml", "mlp", ["env.init=random", *overrides], seed=2)
+    env = make_training_env(cfg, num_envs=64, verbose=False)
+    env.set_reference_sampler(reset_reference_sampler(default_motion_lib(), start_clip_labels(cfg)))
+    env.reset()
+    return env.state.root_pos[:, 2].clone()
+
+
+@pytest.mark.parametrize("task", ["follow", "sit"])
+def test_reference_starts_stand_on_the_floor(task):
+    heights = _start_heights(task)
+    assert heights.min() > 0.8 and heights.max() < 1.0, heights  # walking, turning or standing
+
+
+def test_every_clip_on_request_starts_some_in_the_air_or_seated():
+    heights = _start_heights("follow", "env.init_clips=all")
+    assert heights.max() > 1.2 or heights.min() < 0.7, heights
+
+
+def test_no_clip_to_start_from_is_a_clear_error():
+    lib = default_motion_lib()
+    with pytest.raises(ValueError, match="no clip labelled"):
+        reset_reference_sampler(lib, ("step_up",))  # every step-up clip stands on its step
