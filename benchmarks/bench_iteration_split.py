@@ -3,8 +3,8 @@
     python benchmarks/bench_iteration_split.py [--models mlp detach tokenhsi cml]
         [--characters puppet humanoid] [--reps 3] [overrides ...]
 
-A model may carry its own overrides after `@` (comma-separated), to time a change against the
-code without it in one run, e.g. `--models mlp detach detach@train.reuse_frozen_features=false`.
+A model may carry its own overrides, each after an `@`, to time a change against the code
+without it in one run, e.g. `--models mlp detach detach@train.reuse_frozen_features=false`.
 
 Follow task, `sim.num_envs` x `train.num_steps_per_env` (64 x 32, the training defaults), one
 torch thread. Rollout: the env's step, the policy's inference (`alg.act`: actor and critic),
@@ -64,8 +64,8 @@ class Variant:
 
     def __init__(self, spec: str, character: str, overrides: list[str]) -> None:
         self.name = spec
-        model, _, own = spec.partition("@")
-        overrides = [*overrides, *(o for o in own.split(",") if o)]
+        model, *own = spec.split("@")
+        overrides = [*overrides, *own]
         self.character = character
         self.context = nullcontext
         """A code state to build and time the variant in (e.g. one patching a change back out)."""

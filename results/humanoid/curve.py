@@ -2,6 +2,7 @@
 and fall share against samples and against minutes of training, one line per run.
 
     python results/humanoid/curve.py RUN [RUN ...] --out results/humanoid/curve.png [--csv FILE]
+        [--labels "recipe A" "recipe B" ...]
 
 Samples are iterations x sim.num_envs x train.num_steps_per_env (from the run's config.yaml);
 minutes are the logged collection + learning times (the training loop, not start-up or
@@ -62,8 +63,12 @@ def main() -> None:
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--csv", type=Path, help="also write every run's smoothed curve here")
     parser.add_argument("--window", type=int, default=20)
+    parser.add_argument("--labels", nargs="+", help="one legend label per run (default: the folder names)")
     args = parser.parse_args()
-    curves = {run.name: run_curve(run) for run in args.runs}
+    labels = args.labels or [run.name for run in args.runs]
+    if len(labels) != len(args.runs):
+        parser.error(f"--labels: {len(labels)} labels for {len(args.runs)} runs")
+    curves = {label: run_curve(run) for label, run in zip(labels, args.runs)}
     fig, axes = plt.subplots(len(PANELS), 2, figsize=(11, 3.0 * len(PANELS)), squeeze=False)
     for name, c in curves.items():
         for row, (key, label) in enumerate(PANELS):
