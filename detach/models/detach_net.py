@@ -299,11 +299,6 @@ class DetachModel(StructuredModel):
         return self.trunk.aux_losses(groups, self.cfg.regularizers, feats)
 
     # ----- frozen encoders (stage 2): computed once per update -----
-    def frozen_features_key(self) -> str:
-        """The key under which `frozen_features` are attached to observations: this model's own
-        (a critic with a trunk of its own has other encoders and must not read them)."""
-        return f"frozen_features_{id(self)}"
-
     @torch.no_grad()
     def frozen_features(self, obs: TensorDict) -> TensorDict | None:
         """z_env and z_self of every sample of `obs` [B] while both encoders are frozen (stage 2),

@@ -283,6 +283,8 @@ class StructuredModel(MLPModel):
         return None
 
     def frozen_features_key(self) -> str:
+        """The key under which `frozen_features` are attached to observations: this model's own
+        (a critic with a trunk of its own has other encoders and must not read them)."""
         return f"frozen_features_{id(self)}"
 
     def head_parameters(self) -> Iterator[nn.Parameter]:

@@ -15,9 +15,9 @@ import torch
 import torch.nn.functional as F
 
 from detach.character.body import DOF_NAMES, KEY_BODIES
+from detach.config.schema import RunConfig
 from detach.envs.observations import AMP_DIM, NUM_DOF, amp_frame
 from detach.motion import MotionLib, MotionState
-from detach.config.schema import RunConfig
 from detach.skills import canonical_name, run_skills, skill_class
 from detach.torch_math import heading_matrix, yaw_of
 
@@ -97,10 +97,11 @@ def reset_reference_sampler(lib: MotionLib, labels: Sequence[str] | None = None
     probs = lib.clip_probs(None)
     if labels is not None:
         keep = torch.tensor([c.skill in labels and not c.meta.get("props") for c in lib.clips], device=probs.device)
-        if not keep.any():
+        if keep.any():
+            probs = torch.where(keep, lib.clip_probs([s for s in labels if s in lib.skills_present]), 0.0)
+        if not keep.any() or probs.sum() <= 0:
             raise ValueError(f"reference-state starts: no clip labelled {sorted(labels)} without a prop "
-                             f"among the {lib.num_clips} clips")
-        probs = torch.where(keep, lib.clip_probs([s for s in labels if s in lib.skills_present]), 0.0)
+                             f"and with a positive weight among the {lib.num_clips} clips")
         probs = probs / probs.sum()
     own: list[torch.Generator] = []
 
