@@ -204,9 +204,15 @@ class AmpPPO(PPO):
         try:
             return self._update()
         finally:
-            key = self.actor.frozen_features_key()
-            if key in self.storage.observations.keys():
+            key = self._frozen_features_key()
+            if key is not None and key in self.storage.observations.keys():
                 del self.storage.observations[key]  # the next rollout's steps carry no such key
+
+    def _frozen_features_key(self) -> str | None:
+        """The actor's key for its frozen features; None for an actor without the hook (stock
+        rsl-rl models)."""
+        fn = getattr(self.actor, "frozen_features_key", None)
+        return fn() if fn is not None else None
 
     def _attach_frozen_features(self) -> None:
         """Run the actor's frozen layers once over the rollout (DETACH's encoders in stage 2) and
@@ -214,10 +220,10 @@ class AmpPPO(PPO):
         over mini-batches read them instead of running those layers again in every mini-batch
         (`train.reuse_frozen_features`). Called before PPO's epochs and again before the
         auxiliary and teachers' passes, since PPO's update ends by moving the input normalisers."""
-        if not self.reuse_frozen_features:
+        key = self._frozen_features_key()
+        if not self.reuse_frozen_features or key is None:
             return
         obs = self.storage.observations
-        key = self.actor.frozen_features_key()
         if key in obs.keys():
             del obs[key]  # computed before the normalisers moved
         feats = self.actor.frozen_features(obs.flatten(0, 1))
