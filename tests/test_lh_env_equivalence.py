@@ -24,6 +24,14 @@ DIGESTS = {
     "carry_held": "4a19f175658e7b37bdfc90d7a77199b37e0b535eaab68373b72c491769d469d7",
     "lh1_recorded": "c6a920b7b122d00dc2ef42b030b6a2268c8788b4d59105d0a4a53bb6fe70e04b",
 }
+OTHER_CPU_DIGESTS = {
+    "lh1_recorded": {"4d6cd084ea37c191b8b520a0ae0f45956c5cdd24d418db5a69b4d612b68892b1"},
+}
+"""The same code's digests on another CPU kind (an AMD EPYC, 2026-12-07: the digest above
+recorded at `df00586` and after gives this one there, run after run): the later-subtask starts
+come from the scripted oracle's recorded rollout, in which float rounding that differs between
+CPU kinds' kernels grows into different states. Only a digest seen from unchanged code goes
+here."""
 CASES = {
     "lh1": ("lh1", ["env.character=puppet"]),
     "lh1_humanoid_mixed": ("lh1", ["env.character=humanoid", "env.init=mixed"]),
@@ -72,7 +80,8 @@ def rollout_digest(name: str) -> str:
 
 @pytest.mark.parametrize("name", list(CASES))
 def test_rollout_is_the_recorded_one(name: str) -> None:
-    assert rollout_digest(name) == DIGESTS[name]
+    digest = rollout_digest(name)
+    assert digest == DIGESTS[name] or digest in OTHER_CPU_DIGESTS.get(name, set()), digest
 
 
 if __name__ == "__main__":

@@ -189,7 +189,10 @@ def test_detach_update_matches_the_recorded_statistics(stage: str) -> None:
     expected = EXPECTED[stage]
     assert got.keys() == expected.keys()
     for key, value in expected.items():
-        assert got[key] == pytest.approx(value, rel=1e-4, abs=1e-6), key
+        # step_sum adds signed steps whose magnitudes sum to step_abs_sum (~800x more), so its
+        # rounding scales with the latter: on another CPU kind it moved 6e-4 (5e-4 of itself)
+        tol = 1e-6 * expected["step_abs_sum"] if key == "step_sum" else 0.0
+        assert got[key] == pytest.approx(value, rel=1e-4, abs=max(tol, 1e-6)), key
 
 
 if __name__ == "__main__":
