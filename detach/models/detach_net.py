@@ -294,8 +294,7 @@ class DetachModel(StructuredModel):
         if reuse_forward and cache is not None and cache[0] is obs:
             return self.trunk.aux_losses(cache[1], self.cfg.regularizers, cache[2])
         groups = self.normalized_groups(obs)
-        frozen = self._attached_features(obs)
-        feats = self.trunk.encode(groups, frozen) if frozen else None
+        feats = self.trunk.encode(groups, self._attached_features(obs))
         return self.trunk.aux_losses(groups, self.cfg.regularizers, feats)
 
     # ----- frozen encoders (stage 2): computed once per update -----
