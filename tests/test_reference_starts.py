@@ -41,3 +41,25 @@ def test_no_clip_to_start_from_is_a_clear_error():
     lib = default_motion_lib()
     with pytest.raises(ValueError, match="no clip labelled"):
         reset_reference_sampler(lib, ("step_up",))  # every step-up clip stands on its step
+
+
+def test_label_weights_leave_idle_out_of_starts_and_style_windows():
+    from detach.skills import skill_class
+    from detach.train.motion_bridge import motion_label_weights
+    from detach.train.run_config import resolve_run
+
+    cfg = resolve_run(TASKS / "follow.yaml", "mlp", ["train.amp.label_weights={idle: 0}"])
+    lib = default_motion_lib(skill_weights=motion_label_weights(cfg))
+    probs = lib.clip_probs(skill_class("follow").motion_labels)
+    idle = torch.tensor([c.skill == "idle" for c in lib.clips])
+    assert probs[idle].sum() == 0 and probs[~idle].sum() == pytest.approx(1.0)
+    default = default_motion_lib().clip_probs(skill_class("follow").motion_labels)
+    assert default[idle].sum() == pytest.approx(1 / 3)  # uniform over walk, turn and idle
+
+
+def test_an_unknown_motion_label_is_a_config_error():
+    from detach.config import ConfigError
+    from detach.train.run_config import resolve_run
+
+    with pytest.raises(ConfigError, match="label_weights.*expected a motion label"):
+        resolve_run(TASKS / "follow.yaml", "mlp", ["train.amp.label_weights={jog: 0}"])

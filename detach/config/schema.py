@@ -335,6 +335,12 @@ class AmpCfg:
     """With task-specific discrimination: relative frequency of each skill among the reference
     windows (the skills of the run's plan only; an unlisted one gets the mean weight; empty =
     uniform)."""
+    label_weights: dict[str, float] = field(default_factory=dict)
+    """Relative weight of each motion label (idle, walk, turn, step_up, sit, carry) when clips
+    are drawn, for the discriminator's reference windows and reference-state starts alike
+    (within a skill's labels, renormalised): e.g. `{idle: 0}` leaves standing out of Follow's
+    prior. A label left out weighs 1; empty = every label equally likely (a third of Follow's
+    windows and starts are then idle)."""
 
 
 @dataclass(frozen=True)

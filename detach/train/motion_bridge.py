@@ -18,6 +18,7 @@ from detach.character.body import DOF_NAMES, KEY_BODIES
 from detach.config.schema import RunConfig
 from detach.envs.observations import AMP_DIM, NUM_DOF, amp_frame
 from detach.motion import MotionLib, MotionState
+from detach.motion.labels import MOTION_LABELS
 from detach.skills import canonical_name, run_skills, skill_class
 from detach.torch_math import heading_matrix, yaw_of
 
@@ -77,6 +78,13 @@ def amp_reference_sampler(lib: MotionLib, steps: int, dt: float, conditional: bo
         return windows.to(device), cond.to(device)
 
     return sample
+
+
+def motion_label_weights(cfg: RunConfig) -> dict[str, float] | None:
+    """The motion library's label weights from `train.amp.label_weights` (a label it leaves
+    out weighs 1), or None for the library's default (uniform over labels)."""
+    given = cfg.train.amp.label_weights
+    return {label: float(given.get(label, 1.0)) for label in MOTION_LABELS} if given else None
 
 
 def start_clip_labels(cfg: RunConfig) -> tuple[str, ...] | None:

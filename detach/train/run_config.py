@@ -22,6 +22,7 @@ from detach.character import character_class
 from detach.config import ConfigError, RunConfig, resolve
 from detach.envs.rewards import check_reward_terms
 from detach.models.registry import model_class
+from detach.motion.labels import MOTION_LABELS
 from detach.sim import SimConfigError, check_backend, check_sim, sim_settings
 from detach.skills import PlanError, canonical_name, run_skills
 from detach.skills.plan import compile_plan
@@ -97,6 +98,12 @@ def complete_run_config(cfg: RunConfig) -> RunConfig:
             raise origin.error(("train", "amp", "skill_weights", skill), str(exc)) from None
         if not weight >= 0:
             raise origin.error(("train", "amp", "skill_weights", skill), f"expected a weight >= 0, found {weight}")
+    for label, weight in cfg.train.amp.label_weights.items():
+        if label not in MOTION_LABELS:
+            raise origin.error(("train", "amp", "label_weights", label),
+                               f"expected a motion label ({', '.join(MOTION_LABELS)}), found {label!r}")
+        if not weight >= 0:
+            raise origin.error(("train", "amp", "label_weights", label), f"expected a weight >= 0, found {weight}")
     pinned: dict[str, str] = {}
     for skill, source in cfg.train.teachers.items():
         try:

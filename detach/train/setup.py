@@ -29,8 +29,8 @@ from detach.skills import canonical_name
 from detach.train.action_bounds import action_bound_loss
 from detach.train.checkpoints import CheckpointError, find_init_checkpoint, read_checkpoint
 from detach.train.distributed import local_device, rank
-from detach.train.motion_bridge import (amp_part_indices, amp_reference_sampler, reset_reference_sampler,
-                                        start_clip_labels)
+from detach.train.motion_bridge import (amp_part_indices, amp_reference_sampler, motion_label_weights,
+                                        reset_reference_sampler, start_clip_labels)
 from detach.train.runner import DetachRunner, MetricsSink
 from detach.train.schedule import stage_lengths
 from detach.train.start_library import make_training_env
@@ -118,7 +118,7 @@ def build_runner(cfg: RunConfig, checkpoint_dir: Path | None, device: str, log: 
     prepare_assets(cfg.task)
     env = make_training_env(cfg, device=device, seed=cfg.seed + rank())
     print(env.describe(), flush=True)
-    lib = default_motion_lib(device="cpu")
+    lib = default_motion_lib(device="cpu", skill_weights=motion_label_weights(cfg))
     env.set_reference_sampler(reset_reference_sampler(lib, start_clip_labels(cfg)))
     teachers = load_teachers(cfg, env, device)  # before the runner: an oracle teacher adds an observation group
     stages = stage_lengths(cfg.train.stages, cfg.train.max_iterations) \
