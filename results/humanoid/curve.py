@@ -2,7 +2,10 @@
 and fall share against samples and against minutes of training, one line per run.
 
     python results/humanoid/curve.py RUN [RUN ...] --out results/humanoid/curve.png [--csv FILE]
-        [--labels "recipe A" "recipe B" ...]
+        [--labels "recipe A" "recipe B" ...] [--baseline OLD.csv --baseline-runs "C: ..."]
+
+`--baseline` draws runs of an earlier `--csv` output (already smoothed; dashed), so a new run
+is compared with one whose folder is gone.
 
 Samples are iterations x sim.num_envs x train.num_steps_per_env (from the run's config.yaml);
 minutes are the logged collection + learning times (the training loop, not start-up or
@@ -31,6 +34,7 @@ PANELS = (
     ("Train/step_reward_style", "style reward per step"),
     ("Train/mean_episode_length", "episode length (steps)"),
     ("Episode_Termination/fell", "share of episodes ended by a fall"),
+    ("Episode_Reward/follow/velocity", "Follow velocity reward (episodes)"),
 )
 
 
@@ -57,6 +61,22 @@ def run_curve(run: Path) -> dict[str, np.ndarray]:
     return out
 
 
+def csv_curves(path: Path, names: list[str]) -> dict[str, dict[str, np.ndarray]]:
+    """Runs `names` of an earlier `--csv` file (smoothed values; a panel it lacks is NaN)."""
+    with path.open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    out = {}
+    for name in names:
+        mine = [r for r in rows if r["run"] == name]
+        if not mine:
+            raise SystemExit(f"{path}: no run {name!r} (it has {sorted({r['run'] for r in rows})})")
+        c = {k: np.array([float(r[k]) for r in mine]) for k in ("iteration", "samples", "minutes")}
+        for key, _ in PANELS:
+            c[key] = np.array([float(r[key]) if r.get(key) not in (None, "") else np.nan for r in mine])
+        out[name] = c
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", type=Path, nargs="+")
@@ -64,17 +84,23 @@ def main() -> None:
     parser.add_argument("--csv", type=Path, help="also write every run's smoothed curve here")
     parser.add_argument("--window", type=int, default=20)
     parser.add_argument("--labels", nargs="+", help="one legend label per run (default: the folder names)")
+    parser.add_argument("--baseline", type=Path, help="an earlier --csv file to draw runs from (dashed)")
+    parser.add_argument("--baseline-runs", nargs="+", default=[], help="which of its runs (their 'run' column)")
     args = parser.parse_args()
     labels = args.labels or [run.name for run in args.runs]
     if len(labels) != len(args.runs):
         parser.error(f"--labels: {len(labels)} labels for {len(args.runs)} runs")
+    if bool(args.baseline) != bool(args.baseline_runs):
+        parser.error("--baseline and --baseline-runs go together")
     curves = {label: run_curve(run) for label, run in zip(labels, args.runs)}
+    old = csv_curves(args.baseline, args.baseline_runs) if args.baseline else {}
     fig, axes = plt.subplots(len(PANELS), 2, figsize=(11, 3.0 * len(PANELS)), squeeze=False)
-    for name, c in curves.items():
+    for name, c in [*old.items(), *curves.items()]:
+        style = "--" if name in old else "-"
         for row, (key, label) in enumerate(PANELS):
-            y = smooth(np.nan_to_num(c[key]), args.window)
-            axes[row, 0].plot(c["samples"] / 1e6, y, label=name)
-            axes[row, 1].plot(c["minutes"], y, label=name)
+            y = c[key] if name in old else smooth(np.nan_to_num(c[key]), args.window)
+            axes[row, 0].plot(c["samples"] / 1e6, y, style, label=name)
+            axes[row, 1].plot(c["minutes"], y, style, label=name)
             axes[row, 0].set_ylabel(label)
     axes[-1, 0].set_xlabel("samples (millions)")
     axes[-1, 1].set_xlabel("minutes of training")
