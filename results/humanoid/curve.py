@@ -46,7 +46,7 @@ def smooth(values: np.ndarray, window: int) -> np.ndarray:
     return np.concatenate([head, np.convolve(values, kernel, mode="valid")])
 
 
-def run_curve(run: Path) -> dict[str, np.ndarray]:
+def run_curve(run: Path, pause_over: float | None = None) -> dict[str, np.ndarray]:
     cfg = yaml.safe_load((run / "config.yaml").read_text())
     per_iteration = cfg["sim"]["num_envs"] * cfg["train"]["num_steps_per_env"]
     metrics = read_metrics(run / "log.mcap")
@@ -54,8 +54,10 @@ def run_curve(run: Path) -> dict[str, np.ndarray]:
         raise SystemExit(f"{run}: no /metrics messages in log.mcap")
     out = {"iteration": np.array([m["iteration"] + 1 for m in metrics], dtype=float)}
     out["samples"] = out["iteration"] * per_iteration
-    out["minutes"] = np.cumsum([m.get("Perf/collection_time", 0.0) + m.get("Perf/learning_time", 0.0)
-                                for m in metrics]) / 60.0
+    seconds = np.array([m.get("Perf/collection_time", 0.0) + m.get("Perf/learning_time", 0.0) for m in metrics])
+    if pause_over is not None:  # an iteration the process was stopped in counts as a typical one
+        seconds = np.where(seconds > pause_over, np.median(seconds), seconds)
+    out["minutes"] = np.cumsum(seconds) / 60.0
     for key, _ in PANELS:
         out[key] = np.array([m.get(key, np.nan) for m in metrics], dtype=float)
     return out
@@ -84,6 +86,8 @@ def main() -> None:
     parser.add_argument("--csv", type=Path, help="also write every run's smoothed curve here")
     parser.add_argument("--window", type=int, default=20)
     parser.add_argument("--labels", nargs="+", help="one legend label per run (default: the folder names)")
+    parser.add_argument("--pause-over", type=float, metavar="S",
+                        help="an iteration longer than S seconds (a stopped process) counts as the median one")
     parser.add_argument("--baseline", type=Path, help="an earlier --csv file to draw runs from (dashed)")
     parser.add_argument("--baseline-runs", nargs="+", default=[], help="which of its runs (their 'run' column)")
     args = parser.parse_args()
@@ -92,7 +96,7 @@ def main() -> None:
         parser.error(f"--labels: {len(labels)} labels for {len(args.runs)} runs")
     if bool(args.baseline) != bool(args.baseline_runs):
         parser.error("--baseline and --baseline-runs go together")
-    curves = {label: run_curve(run) for label, run in zip(labels, args.runs)}
+    curves = {label: run_curve(run, args.pause_over) for label, run in zip(labels, args.runs)}
     old = csv_curves(args.baseline, args.baseline_runs) if args.baseline else {}
     fig, axes = plt.subplots(len(PANELS), 2, figsize=(11, 3.0 * len(PANELS)), squeeze=False)
     for name, c in [*old.items(), *curves.items()]:
