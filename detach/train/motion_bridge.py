@@ -80,11 +80,11 @@ def amp_reference_sampler(lib: MotionLib, steps: int, dt: float, conditional: bo
     return sample
 
 
-def motion_label_weights(cfg: RunConfig) -> dict[str, float] | None:
-    """The motion library's label weights from `train.amp.label_weights` (a label it leaves
-    out weighs 1), or None for the library's default (uniform over labels)."""
+def motion_label_weights(cfg: RunConfig) -> dict[str, float]:
+    """The motion library's label weights from `train.amp.label_weights`: a label it leaves
+    out weighs 1, so an empty mapping is the library's default (uniform over labels)."""
     given = cfg.train.amp.label_weights
-    return {label: float(given.get(label, 1.0)) for label in MOTION_LABELS} if given else None
+    return {label: float(given.get(label, 1.0)) for label in MOTION_LABELS}
 
 
 def start_clip_labels(cfg: RunConfig) -> tuple[str, ...] | None:
