@@ -11,7 +11,7 @@ import torch
 
 from detach.config import resolve
 from detach.motion.builtin import default_motion_lib
-from detach.train.motion_bridge import reset_reference_sampler, start_clip_labels
+from detach.train.motion_bridge import reset_reference_sampler, start_clip_labels, start_clip_probs
 from detach.train.start_library import make_training_env
 
 TASKS = Path(__file__).resolve().parents[1] / "configs" / "tasks"
@@ -35,6 +35,25 @@ def test_reference_starts_stand_on_the_floor(task):
 def test_every_clip_on_request_starts_some_in_the_air_or_seated():
     heights = _start_heights("follow", "env.init_clips=all")
     assert heights.max() > 1.2 or heights.min() < 0.7, heights
+
+
+def test_prop_free_starts_stand_on_the_floor_in_every_prop_free_pose():
+    heights = _start_heights("carry", "env.init_clips=prop_free")
+    assert heights.min() > 0.8 and heights.max() < 1.0, heights
+    lib = default_motion_lib()
+    by_label = {}
+    for mode in ("first_skill", "prop_free", "all"):
+        cfg = resolve(TASKS / "carry.yaml", "mlp", [f"env.init_clips={mode}"])
+        probs = start_clip_probs(lib, start_clip_labels(cfg))
+        by_label[mode] = {c.skill: 0.0 for c in lib.clips}
+        for c, p in zip(lib.clips, probs.tolist()):
+            by_label[mode][c.skill] += p
+    # Carry's own clips and walking only; every prop-free label alike; every label alike
+    assert by_label["first_skill"] == pytest.approx({"carry": 0.5, "walk": 0.5, "idle": 0, "turn": 0,
+                                                     "step_up": 0, "sit": 0})
+    assert by_label["prop_free"] == pytest.approx({"carry": 0.25, "walk": 0.25, "idle": 0.25, "turn": 0.25,
+                                                   "step_up": 0, "sit": 0})
+    assert by_label["all"] == pytest.approx({label: 1 / 6 for label in by_label["all"]})
 
 
 def test_no_clip_to_start_from_is_a_clear_error():

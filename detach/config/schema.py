@@ -148,12 +148,13 @@ class EnvCfg:
     traj_fail_distance: float = ranged(4.0, POSITIVE)
     init: Literal["default", "random", "mixed"] = "mixed"
     mixed_init_prob: float = ranged(0.5, FRACTION)
-    init_clips: Literal["first_skill", "all"] = "first_skill"
+    init_clips: Literal["first_skill", "prop_free", "all"] = "first_skill"
     """Which clips reference-state starts (`init: random | mixed`) are drawn from:
     `first_skill`, the clips of the first subtask's skill (`Skill.motion_labels`, e.g. Follow's
-    walk, turn and idle) that need no prop; `all`, every clip, also a frame on top of a step or
-    on a seat the env does not have there (the character then starts in the air or sitting on
-    nothing: before 2026-12-07 every run started so)."""
+    walk, turn and idle) that need no prop; `prop_free`, every clip that needs no prop (every
+    skill's walking, turning, standing and carrying poses); `all`, every clip, also a frame on
+    top of a step or on a seat the env does not have there (the character then starts in the
+    air or sitting on nothing: before 2026-12-07 every run started so)."""
     mid_task_init_prob: float = ranged(0.0, FRACTION)
     """Training only: the share of episodes that start from the middle of their first
     subtask's task where its skill offers such states (Carry: at the box with the hands on its

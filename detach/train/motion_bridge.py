@@ -89,28 +89,38 @@ def motion_label_weights(cfg: RunConfig) -> dict[str, float]:
 
 def start_clip_labels(cfg: RunConfig) -> tuple[str, ...] | None:
     """The motion labels reference-state starts draw from (`env.init_clips`): the first
-    subtask's skill's, or None for every clip."""
+    subtask's skill's, every label (`prop_free`: the sampler then keeps the clips without a
+    prop), or None for every clip."""
     if cfg.env.init_clips == "all":
         return None
+    if cfg.env.init_clips == "prop_free":
+        return MOTION_LABELS
     return skill_class(canonical_name(cfg.task.plan[0])).motion_labels
+
+
+def start_clip_probs(lib: MotionLib, labels: Sequence[str] | None = None) -> torch.Tensor:
+    """[C] probability that a reference-state start is drawn from each clip.
+
+    `labels`: only clips with these motion labels that need no prop (`meta["props"]`: a step
+    or seat the motion stands or sits on, which the env does not have under a start), with the
+    library's label weights renormalised over them; None: every clip."""
+    probs = lib.clip_probs(None)
+    if labels is None:
+        return probs
+    keep = torch.tensor([c.skill in labels and not c.meta.get("props") for c in lib.clips], device=probs.device)
+    if keep.any():
+        probs = torch.where(keep, lib.clip_probs([s for s in labels if s in lib.skills_present]), 0.0)
+    if not keep.any() or probs.sum() <= 0:
+        raise ValueError(f"reference-state starts: no clip labelled {sorted(labels)} without a prop "
+                         f"and with a positive weight among the {lib.num_clips} clips")
+    return probs / probs.sum()
 
 
 def reset_reference_sampler(lib: MotionLib, labels: Sequence[str] | None = None
                             ) -> Callable[[int, torch.Generator], dict]:
-    """Reference-state initialisation source in the format `detach.envs.resets` expects.
-
-    `labels`: draw only from clips with these motion labels that need no prop (`meta["props"]`:
-    a step or seat the motion stands or sits on, which the env does not have under a start);
-    None: every clip."""
-    probs = lib.clip_probs(None)
-    if labels is not None:
-        keep = torch.tensor([c.skill in labels and not c.meta.get("props") for c in lib.clips], device=probs.device)
-        if keep.any():
-            probs = torch.where(keep, lib.clip_probs([s for s in labels if s in lib.skills_present]), 0.0)
-        if not keep.any() or probs.sum() <= 0:
-            raise ValueError(f"reference-state starts: no clip labelled {sorted(labels)} without a prop "
-                             f"and with a positive weight among the {lib.num_clips} clips")
-        probs = probs / probs.sum()
+    """Reference-state initialisation source in the format `detach.envs.resets` expects,
+    drawing clips by `start_clip_probs(lib, labels)`."""
+    probs = start_clip_probs(lib, labels)
     own: list[torch.Generator] = []
 
     def sample(n: int, generator: torch.Generator) -> dict[str, torch.Tensor]:
