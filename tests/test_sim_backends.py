@@ -206,3 +206,25 @@ def test_lh_env_on_warp_steps_lh1_with_finite_observations():
         obs, rew, dones, _ = env.step(torch.rand(2, env.num_actions, generator=gen) * 2 - 1)
         assert all(torch.isfinite(v).all() for v in obs.values()) and torch.isfinite(rew).all()
     assert math.isfinite(float(env.backend.qpos.abs().max()))
+
+
+@pytest.mark.parametrize("name", BACKENDS)
+def test_a_body_wrench_acts_in_its_world_only_until_cleared(name, scene):
+    """`set_body_wrench` (the balance assist's seam): a force on the root body of world 1
+    moves that world alone, held over the steps until it is set to zero."""
+    _, model, _, _ = scene
+    be = _backend(name, scene)
+    qpos = torch.as_tensor(model.qpos0, dtype=torch.float32).repeat(N, 1)
+    be.reset(torch.arange(N), qpos, torch.zeros(N, model.nv))
+    root = int(model.jnt_bodyid[0])
+    push = torch.zeros(N, 6)
+    push[1, 0] = 400.0  # N along +x on world 1's root
+    be.set_body_wrench(root, push)
+    for _ in range(5):
+        be.step(torch.zeros(N, model.nu), 4)
+    x = be.xpos[:, root, 0]
+    assert x[1] - x[0] > 0.05 and torch.allclose(x[0], x[2], atol=1e-6), x
+    be.set_body_wrench(root, torch.zeros(N, 6))
+    before = be.qvel[1, 0].clone()
+    be.step(torch.zeros(N, model.nu), 4)
+    assert be.qvel[1, 0] < before + 1e-3  # no longer pushed: friction slows it

@@ -139,6 +139,7 @@ def test_aids_come_from_the_config() -> None:
         "oracle teacher", "oracle-recorded starts", "chosen checkpoint", "added reward terms"]
     assert aids("train.init_action_mean={grasp: 0.1}", "train.critic_warmup_iterations=5") == [
         "set start pose", "critic warm-up"]
+    assert aids("train.balance_assist.torque=1000") == ["balance assist"]
     tokenhsi = resolve(ROOT / "configs/tasks/carry.yaml", "tokenhsi", ["env.character=puppet"])
     started = dataclasses.replace(tokenhsi, train=dataclasses.replace(tokenhsi.train, init_from="runs/x"))
     assert run_aids(tokenhsi) == [] and run_aids(started) == ["copied tokenizer"]

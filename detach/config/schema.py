@@ -367,6 +367,33 @@ class KeepCheckpointsCfg:
 
 
 @dataclass(frozen=True)
+class BalanceAssistCfg:
+    """A training aid for the humanoid (an assistive-force curriculum, as in Yu, Turk and Liu
+    2018): a spring-damper torque on the pelvis that rights its tilt (roll and pitch, never
+    yaw), at full strength for `hold_iterations`, fading linearly to zero over the next
+    `fade_iterations`, off after. It lets a policy step forward without tipping over while it
+    learns to walk, then hands balance back to it. Training envs only: evaluation, play and
+    every validation choice run without it. `torque` 0 (the default) disables it."""
+
+    torque: float = ranged(0.0, AT_LEAST_0)
+    """N m per radian of pelvis tilt (the humanoid's gravity torque is ~530 N m/rad)."""
+    damping: float = ranged(0.0, AT_LEAST_0)
+    """N m s/rad on the pelvis's roll and pitch rates."""
+    hold_iterations: int = ranged(0, AT_LEAST_0)
+    fade_iterations: int = ranged(0, AT_LEAST_0)
+
+    def scale(self, iteration: int) -> float:
+        """Strength at a PPO iteration (0-based), 1 = full."""
+        if self.torque <= 0.0 and self.damping <= 0.0:
+            return 0.0
+        if iteration < self.hold_iterations:
+            return 1.0
+        if self.fade_iterations <= 0:
+            return 0.0
+        return max(0.0, 1.0 - (iteration - self.hold_iterations) / self.fade_iterations)
+
+
+@dataclass(frozen=True)
 class TrainCfg:
     max_iterations: int = ranged(1000, AT_LEAST_1)
     num_steps_per_env: int = ranged(32, AT_LEAST_1)
@@ -456,6 +483,7 @@ class TrainCfg:
     """With a multi-head critic (CML), normalise the advantage of each objective before their
     weighted sum; otherwise the weighted sum is normalised as one."""
     amp: AmpCfg = AmpCfg()
+    balance_assist: BalanceAssistCfg = BalanceAssistCfg()
     stages: StagesCfg = StagesCfg()
     teachers: dict[str, str] = field(default_factory=dict)
     """Kickstarting (`detach.train.teachers`): skill -> a run folder or checkpoint whose policy

@@ -6,8 +6,7 @@ character -> backend -> plan tracker (targets, transitions, scores; the skills o
 where some ended (`EpisodeStarts` plans them, the plan tracker keeps their books) ->
 `ObservationBuilder`. Single-skill tasks are one-subtask plans.
 
-An evaluator reads `extras["episode_progress"]` where episodes ended (`PlanTracker.episode_end`)
-and `snapshot(i)` (`detach.envs.views`); the sizes of the observation groups are `obs_spec`.
+Evaluators read `extras["episode_progress"]` and `snapshot(i)`; group sizes are in `obs_spec`.
 """
 
 from __future__ import annotations
@@ -98,6 +97,7 @@ class LHEnv(VecEnv):
         """Actions [N, A] in [-1, 1] -> the character's controls -> the backend's substeps."""
         a = actions.to(self.device, torch.float32).clamp(-1.0, 1.0)
         self.character.pre_step(a, self.state, self.tracker.may_hold())
+        self.world.assist.apply(self.state)  # a training aid, off unless set (`train.balance_assist`)
         self.backend.step(self.character.controls(a, self.backend.qpos), self.substeps)
 
     def _judge_step(self, state: SimState) -> tuple[SkillContext, torch.Tensor, torch.Tensor, dict,

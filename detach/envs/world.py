@@ -15,6 +15,7 @@ import torch
 
 from detach.character import Character, MovableObject, make_character
 from detach.config.schema import RunConfig, SimCfg
+from detach.envs.assist import BalanceAssist
 from detach.sim import PhysicsBackend, make_backend
 from detach.sim.raster import Raster
 from detach.sim.state import SceneIndex, SimState, read_state
@@ -32,6 +33,8 @@ class World:
     """The static surface's heights (m) on the scene's grid, on the env's device."""
     dyn_slot: torch.Tensor
     """[K + 1] scene object index -> slot among the dynamic objects (-1: static; [-1]: none)."""
+    assist: BalanceAssist
+    """The training aid `train.balance_assist` (off unless the trainer sets it)."""
 
     @classmethod
     def build(cls, cfg: RunConfig, sim: SimCfg, num_envs: int, device: torch.device, assets: dict | None = None,
@@ -51,7 +54,8 @@ class World:
             len(scene.dynamic), device=device)
         r = scene.raster
         raster = Raster(torch.as_tensor(r.heights, device=device), r.origin, r.spacing)
-        return cls(character, model, scene, backend, index, raster, dyn_slot)
+        assist = BalanceAssist(backend, int(index.body[0]))
+        return cls(character, model, scene, backend, index, raster, dyn_slot, assist)
 
     def read(self) -> SimState:
         """The backend's current state as bodies, hinges and objects (world frame)."""

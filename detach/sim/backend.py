@@ -44,6 +44,12 @@ class PhysicsBackend(ABC):
         [N] is set; optionally set its per-simulation eq_data [N, 12] (e.g. a weld's relative
         pose). Rows outside mask are ignored: a mask needs no host read to select them."""
 
+    def set_body_wrench(self, body_id: int, wrench: torch.Tensor) -> None:
+        """Hold an external wrench [N, 6] (world-frame force, then torque; MuJoCo's
+        `xfrc_applied`) on body `body_id` from the next step until it is set again; a reset
+        clears it in the reset simulations."""
+        raise NotImplementedError(f"{type(self).__name__} applies no external wrench")
+
     # batched views ------------------------------------------------------------------------
     @property
     @abstractmethod

@@ -55,6 +55,11 @@ class MujocoBatchBackend(PhysicsBackend):
             self._cache[name] = t
         return t
 
+    def set_body_wrench(self, body_id: int, wrench: torch.Tensor) -> None:
+        if "xfrc_applied" not in self._np:
+            self._np["xfrc_applied"] = self.batch.bind("xfrc_applied")
+        self._np["xfrc_applied"][:, body_id] = wrench.detach().to("cpu", torch.float64).numpy()
+
     def step(self, ctrl: torch.Tensor, nstep: int) -> None:
         self._np["ctrl"][:] = ctrl.detach().to("cpu", torch.float64).numpy()
         self.batch.step(nstep=int(nstep), stage=_STAGE_VEL)

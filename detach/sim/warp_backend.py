@@ -124,6 +124,7 @@ class WarpBackend(PhysicsBackend):
             self.d = mjw.make_data(model, nworld=n, nconmax=self.nconmax, njmax=self.njmax)
         self._t = {name: wp.to_torch(getattr(self.d, name)) for name in _CONTRACT_VIEWS}
         self._ctrl = wp.to_torch(self.d.ctrl)
+        self._xfrc: torch.Tensor | None = None
         self._eq_active = wp.to_torch(self.d.eq_active) if model.neq else None
         self._eq_data = wp.to_torch(self.m.eq_data) if model.neq else None
         self._nacon = wp.to_torch(self.d.nacon)
@@ -168,6 +169,11 @@ class WarpBackend(PhysicsBackend):
         for _ in range(nstep):
             self.mjw.step(self.m, self.d)
         self._recompute()
+
+    def set_body_wrench(self, body_id: int, wrench: torch.Tensor) -> None:
+        if self._xfrc is None:  # a view of the device array the captured graph reads
+            self._xfrc = self.wp.to_torch(self.d.xfrc_applied)
+        self._xfrc[:, body_id].copy_(wrench.detach())
 
     def step(self, ctrl: torch.Tensor, nstep: int) -> None:
         nstep = int(nstep)

@@ -53,6 +53,8 @@ StageHook = Callable[..., None]
 `resumed=True` for the stage a resumed run continues (enter-once work such as DETACH's encoder
 snapshot must not run again: the checkpoint holds its result)."""
 IterationHook = Callable[[int, dict[str, float]], None]
+CurriculumHook = Callable[[int], dict[str, float]]
+"""Called before each iteration's rollout with its index; returns metrics to log with it."""
 
 
 def ended_episodes(ended: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]
@@ -150,6 +152,8 @@ class DetachRunner(OnPolicyRunner):
         self.log = log
         self.on_stage = on_stage
         self.on_iteration = on_iteration
+        self.before_iteration: CurriculumHook | None = None
+        """A training curriculum (`train.balance_assist`), set by `detach.train.setup`."""
         self.progress = progress
         self.completed_iteration = -1
         self.resumed = False
@@ -312,6 +316,7 @@ class DetachRunner(OnPolicyRunner):
                     else:
                         self.on_stage(stage)
             self.alg.stage = stage
+            curriculum = self.before_iteration(it) if self.before_iteration is not None else {}
             t0 = time.time()
             episode_logs: dict[str, list[torch.Tensor]] = {}
             ended: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = []
@@ -354,6 +359,7 @@ class DetachRunner(OnPolicyRunner):
                                          f"{f' (and {len(bad) - 1} more)' if len(bad) > 1 else ''}; "
                                          f"the last checkpoint holds the last good weights")
             metrics.update(rollout_means(episode_logs))
+            metrics.update(curriculum)
             metrics["Perf/total_fps"] = steps / max(collect_time + learn_time, 1e-9)
             metrics["Perf/collection_time"] = collect_time
             metrics["Perf/learning_time"] = learn_time

@@ -131,6 +131,14 @@ def build_runner(cfg: RunConfig, checkpoint_dir: Path | None, device: str, log: 
         alg.reference_sampler = amp_reference_sampler(
             lib, cfg.env.amp_obs_steps, env.dt, cfg.env.task_specific_discrimination, device,
             plan=[canonical_name(s) for s in cfg.task.plan], weights=cfg.train.amp.skill_weights, skills=env.skills)
+    assist = cfg.train.balance_assist
+    if assist.torque > 0.0 or assist.damping > 0.0:
+        def balance_assist(it: int) -> dict[str, float]:
+            scale = assist.scale(it)
+            env.world.assist.set(assist.torque * scale, assist.damping * scale)
+            return {"Train/balance_assist": scale}
+
+        runner.before_iteration = balance_assist
     alg.critic_warmup_iterations = cfg.train.critic_warmup_iterations
     alg.critic_warmup_lr = cfg.train.critic_warmup_learning_rate
     alg.reuse_frozen_features = cfg.train.reuse_frozen_features
