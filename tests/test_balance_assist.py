@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from detach.config import resolve
+from detach.envs.assist import MAX_SPIN, MAX_TILT, righting_wrench
 from detach.motion.builtin import default_motion_lib
 from detach.train.motion_bridge import reset_reference_sampler, start_clip_labels
 from detach.train.setup import build_runner
@@ -76,3 +77,14 @@ def test_training_logs_the_assist_and_evaluation_envs_have_none():
     assert env.world.assist.gains is None  # the last zero wrench was written and the assist is gone
     evaluation = make_training_env(cfg, num_envs=2, verbose=False)
     assert evaluation.world.assist.gains is None
+
+
+def test_the_torque_rights_a_small_tilt_and_stays_bounded_upside_down():
+    half = torch.tensor([0.05, 1.5, 3.1]) / 2  # pitch forward by 0.05, 1.5 and 3.1 rad (about +y)
+    quat = torch.stack((half.cos(), torch.zeros(3), half.sin(), torch.zeros(3)), dim=-1)
+    spin = torch.tensor([[0.0, 0.0, 0.0], [0.0, 50.0, 0.0], [30.0, 0.0, 9.0]])
+    wrench = righting_wrench(quat, spin, 1000.0, 30.0)
+    assert torch.all(wrench[:, :3] == 0)
+    assert wrench[0, 4] == pytest.approx(-50.0, rel=1e-3) and wrench[0, [3, 5]].abs().max() < 1e-4  # back about -y
+    assert wrench[:, 5].abs().max() == 0  # yaw is never touched
+    assert wrench[:, 3:].norm(dim=-1).max() <= 1000.0 * MAX_TILT + 30.0 * MAX_SPIN + 1e-3

@@ -14,6 +14,12 @@ from detach.sim import PhysicsBackend
 from detach.sim.state import SimState
 from detach.torch_math import quat_rotate
 
+MAX_TILT = 0.6
+"""rad: the torque stops growing here. A body tilted further has fallen, and the full gain at
+a humanoid upside down (3 kN m on a 10 kg pelvis) made the simulation diverge (bad QACC)."""
+MAX_SPIN = 10.0
+"""rad/s: the roll/pitch rate the damping acts on is capped at this, for the same reason."""
+
 
 def righting_wrench(root_quat: torch.Tensor, root_ang: torch.Tensor, torque: float, damping: float) -> torch.Tensor:
     """[N, 6] world-frame wrench (zero force, then torque) on the pelvis from its orientation
@@ -21,9 +27,10 @@ def righting_wrench(root_quat: torch.Tensor, root_ang: torch.Tensor, torque: flo
     up = quat_rotate(root_quat, root_quat.new_tensor((0.0, 0.0, 1.0)).expand_as(root_ang))
     axis = torch.cross(up, up.new_tensor((0.0, 0.0, 1.0)).expand_as(up), dim=-1)  # |axis| = sin(tilt)
     sin = axis.norm(dim=-1, keepdim=True)
-    tilt = torch.atan2(sin, up[:, 2:3])
+    tilt = torch.atan2(sin, up[:, 2:3]).clamp(max=MAX_TILT)
     spin = root_ang.clone()
     spin[:, 2] = 0.0
+    spin = spin * (MAX_SPIN / spin.norm(dim=-1, keepdim=True).clamp_min(MAX_SPIN))
     tau = torque * axis * (tilt / sin.clamp_min(1e-6)) - damping * spin
     return torch.cat((torch.zeros_like(tau), tau), dim=-1)
 
