@@ -21,7 +21,7 @@ __version__ = "0.1.0"
 PUBLIC: dict[str, tuple[str, ...]] = {
     # configuration: load, merge, override, validate
     "detach.config": ("ConfigError", "RunConfig", "ModelCfg", "resolve", "dump", "load_task", "find_task_file",
-                      "builtin_configs"),
+                      "builtin_configs", "load_run_config"),
     "detach.config.keys": ("format_keys", "select"),
     # running: what `detach-run` does, as functions
     "detach.runs.actions": ("RunOutcome", "train_config", "train_run", "resume", "evaluate", "export",
@@ -62,6 +62,7 @@ PUBLIC: dict[str, tuple[str, ...]] = {
                            "load_initial_weights", "apply_action_means", "merge_normalizers"),
     "detach.train.checkpoints": ("newest_readable_checkpoint",),
     "detach.train.start_library": ("make_training_env",),
+    "detach.train.clip_clone": ("clone_clip_start",),
     # evaluation, policies, tables and the pictures of a task
     "detach.eval.episodes": ("run_evaluation",),
     "detach.runs.policy": ("load_policy",),
@@ -93,7 +94,8 @@ if TYPE_CHECKING:  # what type checkers and editors see; tests/test_architecture
     from detach.character.puppet import GRASP_ACTION
     from detach.cli import main as cli_main
     from detach.config import (
-        ConfigError, ModelCfg, RunConfig, builtin_configs, dump, find_task_file, load_task, resolve,
+        ConfigError, ModelCfg, RunConfig, builtin_configs, dump, find_task_file, load_run_config, load_task,
+        resolve,
     )
     from detach.config.keys import format_keys, select
     from detach.envs import observations
@@ -131,6 +133,7 @@ if TYPE_CHECKING:  # what type checkers and editors see; tests/test_architecture
     from detach.skills.trajectories import distance_to_polyline
     from detach.torch_math import point_box_distance, wrap_angle, yaw_of
     from detach.train.checkpoints import newest_readable_checkpoint
+    from detach.train.clip_clone import clone_clip_start
     from detach.train.run_config import complete_run_config, resolve_run
     from detach.train.start_library import make_training_env
     from detach.train.setup import (

@@ -3,8 +3,11 @@ and fall share against samples and against minutes of training, one line per run
 
     python results/humanoid/curve.py RUN [RUN ...] --out results/humanoid/curve.png [--csv FILE]
         [--labels "recipe A" "recipe B" ...] [--baseline OLD.csv --baseline-runs "C: ..."]
+        [--continues K=J:537]
 
-`--baseline` draws runs of an earlier `--csv` output (already smoothed; dashed), so a new run
+`--continues CHILD=PARENT:ITER` draws run CHILD (a label) after run PARENT's iteration ITER,
+the checkpoint it started from (`train.init_from`): its samples and minutes are offset by
+PARENT's there. `--baseline` draws runs of an earlier `--csv` output (already smoothed; dashed), so a new run
 is compared with one whose folder is gone.
 
 Samples are iterations x sim.num_envs x train.num_steps_per_env (from the run's config.yaml);
@@ -35,6 +38,7 @@ PANELS = (
     ("Train/mean_episode_length", "episode length (steps)"),
     ("Episode_Termination/fell", "share of episodes ended by a fall"),
     ("Episode_Reward/follow/velocity", "Follow velocity reward (episodes)"),
+    ("Train/balance_assist", "balance assist strength"),
 )
 
 
@@ -90,6 +94,8 @@ def main() -> None:
                         help="an iteration longer than S seconds (a stopped process) counts as the median one")
     parser.add_argument("--baseline", type=Path, help="an earlier --csv file to draw runs from (dashed)")
     parser.add_argument("--baseline-runs", nargs="+", default=[], help="which of its runs (their 'run' column)")
+    parser.add_argument("--continues", nargs="+", default=[], metavar="CHILD=PARENT:ITER",
+                        help="draw run CHILD after run PARENT's iteration ITER (labels)")
     args = parser.parse_args()
     labels = args.labels or [run.name for run in args.runs]
     if len(labels) != len(args.runs):
@@ -97,6 +103,16 @@ def main() -> None:
     if bool(args.baseline) != bool(args.baseline_runs):
         parser.error("--baseline and --baseline-runs go together")
     curves = {label: run_curve(run, args.pause_over) for label, run in zip(labels, args.runs)}
+    for spec in args.continues:
+        child, _, rest = spec.partition("=")
+        parent, _, at = rest.rpartition(":")
+        if child not in curves or parent not in curves or not at.isdigit():
+            parser.error(f"--continues {spec!r}: CHILD=PARENT:ITER with labels among {list(curves)}")
+        p = curves[parent]
+        i = int(np.searchsorted(p["iteration"], int(at)))
+        i = min(i, len(p["iteration"]) - 1)
+        curves[child]["samples"] = curves[child]["samples"] + p["samples"][i]
+        curves[child]["minutes"] = curves[child]["minutes"] + p["minutes"][i]
     old = csv_curves(args.baseline, args.baseline_runs) if args.baseline else {}
     fig, axes = plt.subplots(len(PANELS), 2, figsize=(11, 3.0 * len(PANELS)), squeeze=False)
     for name, c in [*old.items(), *curves.items()]:

@@ -1,0 +1,106 @@
+"""A start for PPO cloned from the motion clips: the actor fitted to the clips' own hinge
+targets, played open-loop from reference-state starts (behaviour cloning).
+
+Why: the humanoid's PPO runs sat in a standing pose (results/humanoid/README.md); a policy
+that starts out stepping like the clips gives PPO a gait to refine instead of one to find.
+Each round resets every env of the run's training env at a reference state (`env.init:
+random`), remembers the clip and time each env got, and plays the clip's next frames as PD
+targets (`pd_actions`) for `steps` control steps, keeping (observation, action) while the
+episode lasts and the clip has frames. The actor (its observation normaliser included) is then
+fitted by mean squared error; the runner's checkpoint is a start for `train.init_from` (with
+`train.critic_warmup_iterations`: its critic is untrained).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Callable
+
+import torch
+
+from detach.character.actions import pd_actions
+from detach.config.schema import RunConfig
+from detach.motion.builtin import default_motion_lib
+from detach.torch_math import heading_matrix, yaw_of
+from detach.train.motion_bridge import motion_label_weights, start_clip_labels, start_clip_probs
+from detach.train.setup import build_runner
+
+
+def clone_clip_start(cfg: RunConfig, out: Path, rounds: int = 60, steps: int = 45, epochs: int = 30,
+                     assist: tuple[float, float] = (0.0, 0.0), log: Callable[[str], None] = print) -> dict[str, float]:
+    """Clone, write the checkpoint to `out`, and check the clone closed-loop (mean actions,
+    150 steps from reference starts, without and with `assist`). Returns the figures logged.
+    The observations stay in RAM (~8 kB each for the humanoid's Follow)."""
+    env, runner = build_runner(cfg, None, "cpu", log=None, progress=False)
+    lib = default_motion_lib(device="cpu", skill_weights=motion_label_weights(cfg))
+    probs = start_clip_probs(lib, start_clip_labels(cfg))
+    drawn: dict[str, torch.Tensor] = {}
+
+    def sample(n: int, gen: torch.Generator) -> dict[str, torch.Tensor]:
+        """The env's reference-state sampler, remembering which clip and time each env got."""
+        ids = torch.multinomial(probs, n, replacement=True, generator=gen)
+        times = lib.sample_times(ids, generator=gen)
+        s = lib.state(ids, times)
+        R = heading_matrix(yaw_of(s.root_quat))
+        drawn["ids"], drawn["times"] = ids, times
+        return {"root_height": s.root_pos[:, 2], "root_quat": s.root_quat, "dof_pos": s.dof_pos,
+                "dof_vel": s.dof_vel, "root_lin_vel": (s.root_lin_vel[:, None] @ R)[:, 0],
+                "root_ang_vel": (s.root_ang_vel[:, None] @ R)[:, 0]}
+
+    env.set_reference_sampler(sample)
+    env.world.assist.set(*assist)
+    lo, hi, actor = env.character.dof_lo, env.character.dof_hi, runner.alg.actor
+    obs_rows, act_rows, t0 = [], [], time.time()
+    with torch.no_grad():
+        for r in range(rounds):
+            obs = env.reset()
+            ids, times = drawn["ids"], drawn["times"]
+            alive = torch.ones(env.num_envs, dtype=torch.bool)
+            for k in range(steps):
+                tk = times + (k + 1) * env.dt
+                a = pd_actions(lib.state(ids, tk).dof_pos.float(), lo, hi)
+                keep = alive & (tk <= lib.clip_length[ids])
+                obs_rows.append(obs[keep].clone())
+                act_rows.append(a[keep])
+                obs, _, dones, _ = env.step(a)
+                alive &= ~dones.bool()
+            if r % 10 == 0 or r == rounds - 1:
+                log(f"round {r}: {sum(len(a) for a in act_rows)} pairs, {float(alive.float().mean()):.2f} of the "
+                    f"envs still up after {steps} steps, {time.time() - t0:.0f} s")
+    obs_all, act_all = torch.cat(obs_rows), torch.cat(act_rows)
+    actor.update_normalization(obs_all)
+    opt = torch.optim.Adam([p for name, p in actor.named_parameters() if "std" not in name], lr=1e-3)
+    n, variance = act_all.shape[0], float(act_all.var(0).mean())
+    figures = {"pairs": float(n), "action_variance": variance}
+    for epoch in range(epochs):
+        perm, total = torch.randperm(n), 0.0
+        for i in range(0, n, 4096):
+            b = perm[i:i + 4096]
+            loss = ((actor(obs_all[b]) - act_all[b]) ** 2).mean()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            total += float(loss.detach()) * len(b)
+        figures["mse"] = total / n
+        if epoch % 10 == 0 or epoch == epochs - 1:
+            log(f"epoch {epoch}: mse {total / n:.5f} (action variance {variance:.5f})")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    runner.save(str(out))
+    log(f"wrote {out}")
+    for gains in ((0.0, 0.0), tuple(assist)):
+        env.world.assist.set(*gains)
+        with torch.no_grad():
+            obs, end = env.reset(), torch.full((env.num_envs,), 150)
+            walked = torch.zeros(env.num_envs)
+            for k in range(150):
+                prev = env.state.root_pos[:, :2].clone()
+                obs, _, dones, _ = env.step(actor(obs))
+                live = end == 150
+                walked[live] += (env.state.root_pos[live, :2] - prev[live]).norm(dim=-1)
+                end[live & dones.bool()] = k + 1
+        key = f"assist_{gains[0]:g}_{gains[1]:g}"
+        figures[f"{key}_steps"], figures[f"{key}_walked_m"] = float(end.float().mean()), float(walked.mean())
+        log(f"closed loop, assist {gains[0]:g}/{gains[1]:g}: {figures[f'{key}_steps']:.1f} steps before the first "
+            f"episode end, {figures[f'{key}_walked_m']:.2f} m walked")
+    return figures
