@@ -380,7 +380,11 @@ class BalanceAssistCfg:
     damping: float = ranged(0.0, AT_LEAST_0)
     """N m s/rad on the pelvis's roll and pitch rates."""
     hold_iterations: int = ranged(0, AT_LEAST_0)
+    """PPO iterations at full strength, from the run's first (a run started with `init_from`
+    counts from its own first iteration; a resumed run goes on where it stopped)."""
     fade_iterations: int = ranged(0, AT_LEAST_0)
+    """Iterations over which the strength falls linearly from 1 to 0 after the hold (0: it
+    stops at once); the strength is logged as `Train/balance_assist`."""
 
     def scale(self, iteration: int) -> float:
         """Strength at a PPO iteration (0-based), 1 = full."""
