@@ -3,12 +3,12 @@ and fall share against samples and against minutes of training, one line per run
 
     python results/humanoid/curve.py RUN [RUN ...] --out results/humanoid/curve.png [--csv FILE]
         [--labels "recipe A" "recipe B" ...] [--baseline OLD.csv --baseline-runs "C: ..."]
-        [--continues K=J:537]
+        [--continues K=J:538]
 
 `--continues CHILD=PARENT:ITER` draws run CHILD (a label) after run PARENT's iteration ITER,
 the checkpoint it started from (`train.init_from`): its samples and minutes are offset by
-PARENT's there. `--baseline` draws runs of an earlier `--csv` output (already smoothed; dashed), so a new run
-is compared with one whose folder is gone.
+PARENT's there. `--baseline` draws runs of an earlier `--csv` output (already smoothed;
+dashed), so a new run is compared with one whose folder is gone.
 
 Samples are iterations x sim.num_envs x train.num_steps_per_env (from the run's config.yaml);
 minutes are the logged collection + learning times (the training loop, not start-up or
