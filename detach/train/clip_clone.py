@@ -22,8 +22,7 @@ import torch
 from detach.character.actions import pd_actions
 from detach.config.schema import RunConfig
 from detach.motion.builtin import default_motion_lib
-from detach.torch_math import heading_matrix, yaw_of
-from detach.train.motion_bridge import motion_label_weights, start_clip_labels, start_clip_probs
+from detach.train.motion_bridge import motion_label_weights, reset_reference_sampler, start_clip_labels
 from detach.train.setup import build_runner
 
 
@@ -34,21 +33,8 @@ def clone_clip_start(cfg: RunConfig, out: Path, rounds: int = 60, steps: int = 4
     The observations stay in RAM (~8 kB each for the humanoid's Follow)."""
     env, runner = build_runner(cfg, None, "cpu", log=None, progress=False)
     lib = default_motion_lib(device="cpu", skill_weights=motion_label_weights(cfg))
-    probs = start_clip_probs(lib, start_clip_labels(cfg))
-    drawn: dict[str, torch.Tensor] = {}
-
-    def sample(n: int, gen: torch.Generator) -> dict[str, torch.Tensor]:
-        """The env's reference-state sampler, remembering which clip and time each env got."""
-        ids = torch.multinomial(probs, n, replacement=True, generator=gen)
-        times = lib.sample_times(ids, generator=gen)
-        s = lib.state(ids, times)
-        R = heading_matrix(yaw_of(s.root_quat))
-        drawn["ids"], drawn["times"] = ids, times
-        return {"root_height": s.root_pos[:, 2], "root_quat": s.root_quat, "dof_pos": s.dof_pos,
-                "dof_vel": s.dof_vel, "root_lin_vel": (s.root_lin_vel[:, None] @ R)[:, 0],
-                "root_ang_vel": (s.root_ang_vel[:, None] @ R)[:, 0]}
-
-    env.set_reference_sampler(sample)
+    drawn: dict[str, torch.Tensor] = {}  # the clip and time each env of the latest reset got
+    env.set_reference_sampler(reset_reference_sampler(lib, start_clip_labels(cfg), drawn))
     env.world.assist.set(*assist)
     lo, hi, actor = env.character.dof_lo, env.character.dof_hi, runner.alg.actor
     obs_rows, act_rows, t0 = [], [], time.time()

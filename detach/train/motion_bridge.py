@@ -116,10 +116,11 @@ def start_clip_probs(lib: MotionLib, labels: Sequence[str] | None = None) -> tor
     return probs / probs.sum()
 
 
-def reset_reference_sampler(lib: MotionLib, labels: Sequence[str] | None = None
-                            ) -> Callable[[int, torch.Generator], dict]:
+def reset_reference_sampler(lib: MotionLib, labels: Sequence[str] | None = None,
+                            drawn: dict[str, torch.Tensor] | None = None) -> Callable[[int, torch.Generator], dict]:
     """Reference-state initialisation source in the format `detach.envs.resets` expects,
-    drawing clips by `start_clip_probs(lib, labels)`."""
+    drawing clips by `start_clip_probs(lib, labels)`. `drawn`, if given, receives the clip
+    `ids` and `times` of the latest draw (`detach.train.clip_clone` plays the clips on)."""
     probs = start_clip_probs(lib, labels)
     own: list[torch.Generator] = []
 
@@ -132,6 +133,8 @@ def reset_reference_sampler(lib: MotionLib, labels: Sequence[str] | None = None
             generator = own[0]
         ids = torch.multinomial(probs, n, replacement=True, generator=generator)
         times = lib.sample_times(ids, generator=generator)
+        if drawn is not None:
+            drawn["ids"], drawn["times"] = ids, times
         s = lib.state(ids, times)
         R = heading_matrix(yaw_of(s.root_quat))
         return {"root_height": s.root_pos[:, 2], "root_quat": s.root_quat,
