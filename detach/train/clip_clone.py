@@ -74,7 +74,7 @@ def clone_clip_start(cfg: RunConfig, out: Path, rounds: int = 60, steps: int = 4
     out.parent.mkdir(parents=True, exist_ok=True)
     runner.save(str(out))
     log(f"wrote {out}")
-    for gains in ((0.0, 0.0), tuple(assist)):
+    for gains in dict.fromkeys(((0.0, 0.0), tuple(assist))):  # once when the assist is off
         env.world.assist.set(*gains)
         with torch.no_grad():
             obs, end = env.reset(), torch.full((env.num_envs,), 150)
