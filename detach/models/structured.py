@@ -159,6 +159,12 @@ class StructuredModel(MLPModel):
         keys, so `train.init_from` lets them be missing and requires every other key."""
         return ()
 
+    def training_only_prefixes(self) -> tuple[str, ...]:
+        """State-dict key prefixes of modules that only training reads (pre-training heads,
+        regulariser anchors): a shipped policy leaves them out (`detach-run export --format
+        policy`) and loading it keeps their initial values, which never reach an action."""
+        return ()
+
     # ----- rsl-rl API -----
     def _get_latent_dim(self) -> int:
         return self._latent_dim
@@ -292,6 +298,11 @@ class StructuredModel(MLPModel):
         yield from self.mlp.parameters()
         if self.distribution is not None:
             yield from self.distribution.parameters()
+
+
+def training_only_prefixes(module: nn.Module) -> tuple[str, ...]:
+    """`module.training_only_prefixes()`, or none for a model without the method (rsl-rl's MLP)."""
+    return tuple(getattr(module, "training_only_prefixes", lambda: ())())
 
 
 def link_shared_trunk(actor: nn.Module, critic: nn.Module) -> None:

@@ -21,6 +21,7 @@ import torch
 from detach.config import ConfigError
 from detach.envs.lh_env import make_env
 from detach.models.flat_policy import FlatPolicy
+from detach.models.structured import training_only_prefixes
 from detach.runfolder.names import EXPORT_FORMATS, checkpoint_file, checkpoint_iteration, export_file
 from detach.runfolder.atomic import atomic_write_json, atomic_write_text
 from detach.runfolder.folder import RunFolder
@@ -182,16 +183,19 @@ def _export_half(state: dict, actor: torch.nn.Module, obs: dict[str, torch.Tenso
     `--format policy`: the actor alone, with the run's resolved config in the JSON beside it,
     so that `detach-run eval FILE` evaluates it without its run folder (what a study ships).
     Small enough to ship (~2 bytes per parameter): no optimiser, AMP replay or discriminator (a
-    run started from it trains a fresh one). Checked: the actor with the float16 weights against
-    the float32 one on the check observations."""
+    run started from it trains a fresh one); a policy also leaves out the modules only training
+    reads (`training_only_prefixes`: DETACH's pre-training heads and anchors). Checked: the
+    actor with the float16 weights against the float32 one on the check observations."""
     infos = {"model": cfg.model_name, "model_kind": cfg.model.kind, "task": cfg.task_name,
              "character": cfg.env.character}
-    small = {"actor_state_dict": _half(state["actor_state_dict"]), "iter": iteration, "infos": infos}
+    drop = () if critic else training_only_prefixes(actor)  # a policy only acts
+    weights = {k: v for k, v in state["actor_state_dict"].items() if not k.startswith(drop)}
+    small = {"actor_state_dict": _half(weights), "iter": iteration, "infos": infos}
     if critic:
         small["critic_state_dict"] = _half(state["critic_state_dict"])
     with torch.no_grad():
         eager = actor(obs)
-        load_module_weights(actor, small["actor_state_dict"], target, "actor")
+        load_module_weights(actor, small["actor_state_dict"], target, "actor", may_lack=drop)
         diff = float((actor(obs) - eager).abs().max())
     if not diff <= INIT_TOLERANCE:
         raise RuntimeError(f"the float16 policy differs from the float32 one by {diff:.3g} (> {INIT_TOLERANCE})")

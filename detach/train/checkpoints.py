@@ -111,14 +111,21 @@ def describe_mismatch(expected: dict[str, torch.Tensor], found: Any) -> str:
     return "; ".join(parts) or "incompatible values"
 
 
-def load_module_weights(module: torch.nn.Module, weights: Any, path: Path, part: str) -> None:
+def load_module_weights(module: torch.nn.Module, weights: Any, path: Path, part: str,
+                        may_lack: tuple[str, ...] = ()) -> None:
     """`module.load_state_dict(weights)`, with a one-line CheckpointError instead of the
-    kilobytes of key names torch prints for a checkpoint of another architecture."""
+    kilobytes of key names torch prints for a checkpoint of another architecture.
+    `may_lack`: key prefixes the weights may leave out (a shipped policy's training-only
+    modules, `training_only_prefixes`); those keep the module's own values. Every other key is
+    still required."""
+    expected = module.state_dict()
+    if may_lack and isinstance(weights, dict):
+        weights = {**{k: v for k, v in expected.items() if k.startswith(may_lack) and k not in weights}, **weights}
     try:
         module.load_state_dict(weights)
     except (RuntimeError, KeyError, TypeError, AttributeError):
         raise CheckpointError(f"the {part} weights do not fit this run's model ("
-                              f"{describe_mismatch(module.state_dict(), weights)}); was the checkpoint "
+                              f"{describe_mismatch(expected, weights)}); was the checkpoint "
                               f"written by another model or config?", str(path)) from None
 
 

@@ -12,6 +12,7 @@ from detach.character import character_class
 from detach.config.schema import RunConfig
 from detach.envs.lh_env import LHEnv
 from detach.models.factory import build_actor_critic
+from detach.models.structured import training_only_prefixes
 from detach.train.checkpoints import check_model, load_module_weights, read_checkpoint
 
 
@@ -28,5 +29,5 @@ def load_trained_actor(cfg: RunConfig, env: LHEnv, checkpoint: Path, device: str
     check_model(state, checkpoint, cfg.model_name, cfg.model.kind)
     actor, _critic = build_actor_critic(cfg.model, env.obs_spec, env.get_observations(),
                                         num_actions=env.num_actions, default_std=default_action_std(cfg))
-    load_module_weights(actor, state["actor_state_dict"], checkpoint, "actor")
+    load_module_weights(actor, state["actor_state_dict"], checkpoint, "actor", may_lack=training_only_prefixes(actor))
     return actor.to(device).eval(), state
