@@ -51,7 +51,7 @@ def test_body_positions_are_mujoco_fk(clips):
                                   "turn_left_90", "turn_right_90", "walk_turn_left", "walk_turn_right", "step_up_0p30",
                                   "step_up_0p45", "step_up_0p50", "sit_down", "sit_stand_up",
                                   "sit_down_0p35", "sit_stand_up_0p35", "sit_down_0p25", "sit_stand_up_0p25",
-                                  "carry_walk", "carry_stand"])
+                                  "carry_walk", "carry_stand", "climb_0p70", "climb_0p86"])
 def test_plausible(clips, name):
     c = clips[name]
     p = check_clip(c)
@@ -61,6 +61,10 @@ def test_plausible(clips, name):
     assert p.min_self_distance > 0.0, p       # no limb interpenetration (hands vs torso/thighs, ...)
     assert p.min_prop_distance > -0.005, p    # nothing but the feet inside the step / seat
     assert p.foot_skate < 0.5, p              # planted feet do not slide (m/s)
+    assert p.lowest_support >= -0.01, p       # declared hands / knee: on their support, not in it
+    assert p.min_support_prop_distance >= -0.01, p
+    assert p.support_skate < 0.5, p           # and they do not slide while down
+    assert not p.flags(), p
     rng = dof_ranges()
     assert (c.dof_pos >= rng[:, 0] - 1e-9).all() and (c.dof_pos <= rng[:, 1] + 1e-9).all()
 
@@ -103,10 +107,33 @@ def test_sit_clips_at_every_lh_seat_height(clips, seat, task):
 
 
 def test_a_step_up_clip_at_the_climb_tasks_height(clips):
-    """The style reward's Climb clips reach the climb task's 0.50 m platform (LH1's 0.70 m and
-    LH3's 0.86 m boxes are past this recipe: `builtin._step_up`)."""
+    """The style reward's Climb clips reach the climb task's 0.50 m platform, LH1's 0.70 m box
+    and LH3's 0.86 m step box (the last two climbed with hands and a knee: `builtin._climb`)."""
     heights = sorted(c.meta["props"][0]["half"][2] * 2 for c in clips.values() if c.skill == "step_up")
-    assert min(abs(h - 0.50) for h in heights) <= 0.02, heights
+    for target in (0.50, 0.70, 0.86):
+        assert min(abs(h - target) for h in heights) <= 0.005, (target, heights)
+
+
+@pytest.mark.parametrize("name,height,size", [("climb_0p70", 0.70, 0.6), ("climb_0p86", 0.86, 0.8)])
+def test_high_box_climbs_end_standing_on_the_top(clips, name, height, size):
+    """LH1's (0.6 x 0.6 x 0.7 m) and LH3's (0.8 x 0.8 x 0.86 m) boxes: the clip starts standing
+    on the floor in front of the box and ends upright on its top, both feet on it, the pelvis at
+    standing height above it; hands and the left knee are the declared extra supports."""
+    c = clips[name]
+    assert c.skill == "step_up" and c.fps == 30.0
+    (box,) = c.meta["props"]
+    assert box["half"] == pytest.approx([size / 2, size / 2, height / 2])
+    top = box["center"][2] + box["half"][2]
+    assert top == pytest.approx(height)
+    assert set(c.meta["supports"]) == {"left_hand", "right_hand", "left_shin"}
+    feet = [BODY_NAMES.index("left_foot"), BODY_NAMES.index("right_foot")]
+    assert c.body_pos[0, feet, 2] == pytest.approx([0.075] * 2, abs=0.005)      # on the floor
+    assert (c.body_pos[0, feet, 0] < box["center"][0] - box["half"][0] - 0.15).all()  # in front of it
+    assert c.root_pos[-1, 2] - top == pytest.approx(0.93, abs=0.01)             # upright on the top
+    assert c.body_pos[-1, feet, 2] == pytest.approx([top + 0.075] * 2, abs=0.005)
+    inside = np.abs(c.body_pos[-1, feet, :2] - np.array(box["center"][:2])) < np.array(box["half"][:2]) - 0.05
+    assert inside.all()
+    assert abs(c.root_quat[-1, 2]) < 0.02  # pelvis nearly level (small pitch)
 
 
 def test_default_motion_lib(clips):

@@ -4,7 +4,8 @@ These clips are made by this module from gait functions (`detach.motion.gait`): 
 curves for hips/knees, arm swing and postures, keyframes solved by two-link leg IK for
 stepping up and sitting, root headings; the root position then follows from the planted
 foot (`detach.motion.placement`: no foot skating, the supporting foot rests on the floor or
-the prop under it) and body positions from MuJoCo forward kinematics. Ankles keep the soles
+the prop under it; the high-box climbs also plant the hands and a knee they declare as
+supports) and body positions from MuJoCo forward kinematics. Ankles keep the soles
 level. Generation is deterministic (no random numbers) and takes well under a second.
 
 They are stand-ins that give AMP a plausible, labelled motion prior so the whole pipeline runs
@@ -18,6 +19,7 @@ on a laptop; they are not human motion capture. Import real clips with `detach-m
 | turn_left_90, turn_right_90 | turn | stepping in place while turning 90 degrees |
 | walk_turn_left, walk_turn_right | turn | walking 1.2 m/s on a curve (0.5 rad/s) |
 | step_up_0p30, _0p45, _0p50 | step_up | stepping onto a 0.30 / 0.45 / 0.50 m high step (prop in meta) |
+| climb_0p70, climb_0p86 | step_up | climbing onto a 0.70 / 0.86 m box (LH1's, LH3's): hands and a knee on its top |
 | sit_down, sit_stand_up | sit | sitting onto a 0.45 m seat (prop in meta) / standing back up |
 | sit_down_0p35, sit_stand_up_0p35 | sit | the same onto a 0.35 m seat (LH2's sofa) |
 | sit_down_0p25, sit_stand_up_0p25 | sit | the same onto a 0.25 m seat (LH3's bed, 0.25 m above the loft's platform) |
@@ -39,7 +41,7 @@ from detach.motion.placement import Terrain, pose_clip_arrays
 from detach.motion.rotations import quat_from_yaw_pitch
 
 FPS = 30.0
-BUILTIN_VERSION = 3
+BUILTIN_VERSION = 4
 _IDX = {n: i for i, n in enumerate(DOF_NAMES)}
 _SIDES = ("left", "right")
 
@@ -94,9 +96,11 @@ def _carry_arms(q: _Tracks, t: np.ndarray, bob: float = 0.0) -> None:
 
 def _finish(name: str, skill: str, q: _Tracks, yaw: np.ndarray, pitch: np.ndarray,
             terrain: Terrain | None = None, notes: str = "",
-            toe_down: dict[str, np.ndarray] | None = None, start_xy=(0.0, 0.0)) -> MotionClip:
+            toe_down: dict[str, np.ndarray] | None = None, start_xy=(0.0, 0.0),
+            supports: tuple[str, ...] = ()) -> MotionClip:
     """Level the soles (plus `toe_down` rad of ankle pitch per side, e.g. at toe-off), clip to
-    joint ranges, ground the root, run FK, wrap as a clip."""
+    joint ranges, ground the root (on the feet and the `supports` bodies), run FK, wrap as a
+    clip."""
     terrain = terrain or Terrain()
     quat = quat_from_yaw_pitch(yaw, pitch)
     fk = humanoid_fk()
@@ -109,9 +113,11 @@ def _finish(name: str, skill: str, q: _Tracks, yaw: np.ndarray, pitch: np.ndarra
         q[f"{s}_ankle_x"], q[f"{s}_ankle_y"] = ax, ay + (toe_down or {}).get(s, 0.0)
     rng = dof_ranges()
     dof = np.clip(q.q, rng[:, 0], rng[:, 1])
-    root, body = pose_clip_arrays(quat, dof, terrain, start_xy)
+    root, body = pose_clip_arrays(quat, dof, terrain, start_xy, supports)
     meta = {"synthetic": True, "source": f"detach.motion.builtin v{BUILTIN_VERSION}",
             "props": terrain.to_meta(), "notes": notes}
+    if supports:
+        meta["supports"] = list(supports)
     return clip_from_arrays(name, skill, FPS, root, quat, dof, body, meta, where=f"builtin:{name}")
 
 
@@ -257,7 +263,7 @@ def _step_up(name: str, height: float, reach: float = 0.45, lean: float = 0.0) -
     there for higher steps; this recipe stays plausible (`detach.motion.plausibility`) up to
     0.50 m: from 0.60 m the lifted shin cuts the step's edge and the support foot slides (2 m/s
     at 0.70 m, LH1's box), and a one-leg step onto 0.86 m (LH3's) would need the hip 60 degrees
-    past its range."""
+    past its range. Those boxes are climbed with hands and a knee instead (`_climb`)."""
     a0, top = _leg().ankle, height + _leg().ankle
     edge = 0.28
     stand = 0.93
@@ -280,6 +286,193 @@ def _step_up(name: str, height: float, reach: float = 0.45, lean: float = 0.0) -
     q["abdomen_y"] = 0.05
     terrain = Terrain([((edge + 0.6, 0.0, height / 2), (0.6, 0.6, height / 2))])
     return _finish(name, "step_up", q, np.zeros(len(t)), pitch, terrain, notes=f"step {height:.2f} m")
+
+
+# --- climbing a high box: hands and a knee on it ------------------------------------------
+
+
+_HAND_R, _SHIN_R = 0.04, 0.05  # hand sphere and shin capsule radii (`detach.character.body`)
+_CLIMB_ABDUCT = 0.12           # shoulder abduction while climbing: hands beside the thighs
+
+
+@dataclass(frozen=True)
+class _Arm:
+    """Sagittal arm geometry at the default pose, metres."""
+
+    torso_z: float        # torso origin above the pelvis origin
+    shoulder_x: float     # shoulder joint in the torso frame (x forward, z up)
+    shoulder_z: float
+    upper: float          # shoulder -> elbow
+    lower: float          # elbow -> hand centre
+
+
+@lru_cache(maxsize=1)
+def _arm() -> _Arm:
+    rest = humanoid_fk().rest_body_pos()
+    b = {n: rest[i] for i, n in enumerate(BODY_NAMES)}
+    sh = b["left_upper_arm"] - b["torso"]
+    return _Arm(float(b["torso"][2] - b["pelvis"][2]), float(sh[0]), float(sh[2]),
+                float(np.linalg.norm(b["left_lower_arm"] - b["left_upper_arm"])),
+                float(np.linalg.norm(b["left_hand"] - b["left_lower_arm"])))
+
+
+def _rot_xz(x, z, angle):
+    """(x, z) rotated by a pitch `angle` about +Y (> 0 tips +Z towards +X)."""
+    c, s = np.cos(angle), np.sin(angle)
+    return x * c + z * s, -x * s + z * c
+
+
+def _hip_xz(pelvis: np.ndarray) -> np.ndarray:
+    """[F, 2] hip joint (x, z) of pelvis rows (x, z, pitch)."""
+    dx, dz = _rot_xz(0.0, _leg().hip_z, pelvis[:, 2])
+    return pelvis[:, :2] + np.stack([dx, dz], axis=1)
+
+
+def _shoulder_xz(pelvis: np.ndarray, abdomen: np.ndarray) -> np.ndarray:
+    """[F, 2] shoulder joint (x, z) for pelvis rows (x, z, pitch) and abdomen pitch."""
+    arm = _arm()
+    tx, tz = _rot_xz(0.0, arm.torso_z, pelvis[:, 2])
+    sx, sz = _rot_xz(arm.shoulder_x, arm.shoulder_z, pelvis[:, 2] + abdomen)
+    return pelvis[:, :2] + np.stack([tx + sx, tz + sz], axis=1)
+
+
+def _arm_ik(shoulder: np.ndarray, torso_pitch: np.ndarray, hand: np.ndarray,
+            abduct: float) -> tuple[np.ndarray, np.ndarray]:
+    """Shoulder pitch and elbow that put the hand centre at world (x, z) `hand` [F, 2] (its
+    lateral place follows from the fixed abduction). The shoulder's x hinge comes before y, so
+    the arm moves in the torso's x-z plane tilted by `abduct`; the elbow points back."""
+    dx, dz = (hand - shoulder).T
+    c, s = np.cos(torso_pitch), np.sin(torso_pitch)
+    u, w = c * dx - s * dz, (s * dx + c * dz) / np.cos(abduct)
+    upper, elbow = two_link_ik(-u, w, _arm().upper, _arm().lower)  # mirrored: the elbow behind
+    return -upper, -elbow
+
+
+def _keys(rows: list[tuple], t: np.ndarray) -> np.ndarray:
+    """Rows (time, v1, v2, ...) -> [F, V] monotone cubic interpolation at times t."""
+    a = np.asarray(rows, dtype=np.float64)
+    return pchip(a[:, 0], a[:, 1:], t)
+
+
+@dataclass(frozen=True)
+class _Box:
+    """A box to climb: its top height and its extent in x and y (m); its near face is at x = face."""
+
+    height: float
+    size: float
+    face: float = 0.45
+
+
+def _ankle_for_knee(hip: np.ndarray, knee_z: float, flex: float) -> tuple[float, float]:
+    """Ankle (x, z) that puts the knee at height `knee_z` in front of `hip`, flexed by `flex` rad."""
+    leg = _leg()
+    up = np.arcsin(np.clip((knee_z - hip[1]) / leg.thigh, -1.0, 1.0))
+    knee = hip + leg.thigh * np.array([np.cos(up), np.sin(up)])
+    shin = flex - np.pi / 2 - up  # world pitch of the shin: the thigh's plus the flexion
+    ankle = knee - leg.shin * np.array([np.sin(shin), np.cos(shin)])
+    return float(ankle[0]), float(ankle[1])
+
+
+def _kneel(box: _Box) -> tuple[np.ndarray, np.ndarray, tuple[float, float, float]]:
+    """Left knee resting on the top (its shin flat on it), the hip 30 degrees up the thigh
+    behind it (knee flexion 150 of 160 degrees) and the pelvis (x, z, pitch) over that hip."""
+    leg = _leg()
+    knee = np.array([box.face + 0.22, box.height + _SHIN_R])
+    a = np.radians(30.0)
+    hip = knee + leg.thigh * np.array([-np.cos(a), np.sin(a)])
+    pitch = 0.2
+    kx, kz = _rot_xz(0.0, -leg.hip_z, pitch)
+    return knee, hip, (hip[0] + kx, hip[1] + kz, pitch)
+
+
+def _climb_body(box: _Box) -> tuple[list[tuple], list[tuple]]:
+    """Pelvis (time, x, z, pitch) and abdomen (time, pitch) keys: lean to the box, back a little
+    while the knee goes up, kneel (bent over the hands), rise over the feet on the top."""
+    top, face = box.height, box.face
+    _, _, kneel = _kneel(box)
+    bend = 0.45 - 1.25 * (top - 0.70)    # less lean towards a higher top
+    lift_z = 0.86 + 0.25 * (top - 0.70)  # pelvis height as the knee goes over the edge
+    hover = (kneel[0], kneel[1] + 0.02, kneel[2])  # the knee 2 cm over its place
+    step = face + _STEP_IN
+    pelvis = [(0.0, 0.0, 0.93, 0.0), (0.2, 0.0, 0.93, 0.02), (0.9, 0.0, 0.86, bend),
+              (1.3, -0.05, 0.86, bend + 0.05), (1.6, -0.05, lift_z, bend), (2.2, *hover), (2.45, *kneel),
+              (3.4, *kneel), (4.2, face - 0.10, top + 0.55, 0.40), (4.8, step - 0.05, top + 0.82, 0.20),
+              (5.3, step - 0.01, top + 0.92, 0.05), (5.8, step, top + 0.93, 0.02)]
+    abdomen = [(0.0, 0.03), (0.2, 0.05), (0.9, bend), (1.3, 0.55), (1.6, 0.6), (2.2, 1.0), (3.4, 1.0),
+               (4.2, 0.5), (4.8, 0.15), (5.3, 0.05), (5.8, 0.03)]
+    return pelvis, abdomen
+
+
+_STEP_IN = 0.10
+"""Both ankles end this far (m) behind the box's near face, on its top."""
+
+
+def _climb_plan(box: _Box) -> dict[str, list[tuple]]:
+    """Keyframes (time, ...) of a climb onto `box`, world sagittal plane: pelvis (x, z, pitch),
+    abdomen pitch, ankle (x, z) per leg and hand centres (x, z).
+
+    Hands go onto the top and the left knee is raised over its edge; a push on the hands lifts
+    the right foot off the floor as the left knee lands on the top (shin flat on it); the left
+    foot swings forward under the hip onto the top, the body rises over it (hands off) and the
+    right leg, once the hip is high enough for its knee to pass over the edge, steps up beside.
+    A contact is a fixed world point held between equal keys."""
+    leg, top, face = _leg(), box.height, box.face
+    a0, step = leg.ankle, face + _STEP_IN
+    knee, hip, _ = _kneel(box)
+    pelvis, abdomen = _climb_body(box)
+    hip_at = lambda t: _hip_xz(_keys(pelvis, np.array([t])))[0]
+    hang = lambda t: (t, *(hip_at(t) + np.array([-0.18, -0.79])))  # the right leg hangs at the face
+    shin_flat = (knee[0] - leg.shin, knee[1])
+    left = [(0.0, 0.0, a0), (0.9, 0.0, a0), (1.25, -0.02, 0.30),
+            (1.6, *_ankle_for_knee(hip_at(1.6), top + 0.16, np.radians(140.0))),
+            (1.95, *_ankle_for_knee(hip_at(1.95), top + 0.15, np.radians(150.0))),
+            (2.2, shin_flat[0], shin_flat[1] + 0.02), (2.45, *shin_flat), (2.7, *shin_flat),
+            (3.0, hip[0], top + 0.11), (3.15, step, top + 0.10), (3.35, step, top + a0), (5.8, step, top + a0)]
+    right = [(0.0, 0.0, a0), (1.7, 0.0, a0), *[hang(k) for k in (2.45, 3.4, 3.6, 3.8, 4.0)],
+             (4.3, face - 0.2, top - 0.05), (4.55, face - 0.18, top + 0.16), (4.8, step, top + 0.14),
+             (5.05, step, top + a0), (5.8, step, top + a0)]
+    hand = (face + 0.10, top + _HAND_R)
+    hands = [(0.0, "rest"), (0.2, "rest"), (0.6, hand[0], hand[1] + 0.08), (0.9, *hand), (3.6, *hand),
+             (3.9, "lift"), (4.7, "rest"), (5.8, "rest")]
+    return dict(pelvis=pelvis, abdomen=abdomen, left=left, right=right, hands=hands)
+
+
+def _hand_keys(rows: list[tuple], pelvis: np.ndarray, abdomen: np.ndarray, kt: np.ndarray) -> list[tuple]:
+    """Hand key rows with "rest" (hanging beside the body) / "lift" (off the top, in front)
+    resolved against the shoulder at that key's time."""
+    out = []
+    for row in rows:
+        if isinstance(row[1], str):
+            i = int(np.argmin(np.abs(kt - row[0])))
+            sh = _shoulder_xz(pelvis[i:i + 1], abdomen[i:i + 1])[0]
+            off = (0.02, -0.48) if row[1] == "rest" else (0.15, -0.42)
+            row = (row[0], sh[0] + off[0], sh[1] + off[1])
+        out.append(row)
+    return out
+
+
+def _climb(name: str, box: _Box) -> MotionClip:
+    """Climb onto a box too high to step onto (`_step_up`): hands and the left knee on its top
+    carry the weight in between (declared as supports, `detach.motion.plausibility`)."""
+    plan = _climb_plan(box)
+    end = plan["pelvis"][-1][0]
+    t = np.arange(int(round(end * FPS)) + 1) / FPS
+    pelvis, abdomen = _keys(plan["pelvis"], t), _keys(plan["abdomen"], t)[:, 0]
+    q = _Tracks(len(t))
+    hip = _hip_xz(pelvis)
+    for s in _SIDES:
+        th, kn = two_link_ik(*(_keys(plan[s], t) - hip).T, _leg().thigh, _leg().shin)
+        q[f"{s}_hip_y"], q[f"{s}_knee_y"] = th - pelvis[:, 2], kn
+    hand = _keys(_hand_keys(plan["hands"], pelvis, abdomen, t), t)
+    shoulder_y, elbow = _arm_ik(_shoulder_xz(pelvis, abdomen), pelvis[:, 2] + abdomen, hand, _CLIMB_ABDUCT)
+    _arms(q, shoulder_y, shoulder_y, elbow, elbow, abduct=_CLIMB_ABDUCT)
+    q["abdomen_y"] = abdomen
+    q["neck_y"] = -0.5 * abdomen  # keep looking ahead while bent over the box
+    half = box.size / 2
+    terrain = Terrain([((box.face + half, 0.0, box.height / 2), (half, half, box.height / 2))])
+    return _finish(name, "step_up", q, np.zeros(len(t)), pelvis[:, 2], terrain,
+                   notes=f"climb onto a {box.height:.2f} m box: hands and a knee on it",
+                   start_xy=(pelvis[0, 0], 0.0), supports=("left_hand", "right_hand", "left_shin"))
 
 
 SEAT_HEIGHT = 0.45
@@ -340,6 +533,8 @@ _RECIPES = (
     lambda: _step_up("step_up_0p30", 0.30),
     lambda: _step_up("step_up_0p45", 0.45),
     lambda: _step_up("step_up_0p50", 0.50),                        # the climb task's platform
+    lambda: _climb("climb_0p70", _Box(0.70, 0.6)),                 # LH1's box
+    lambda: _climb("climb_0p86", _Box(0.86, 0.8)),                 # LH3's static step box
     lambda: _sit("sit_down", down=True),
     lambda: _sit("sit_stand_up", down=False),
     lambda: _sit("sit_down_0p35", down=True, seat=0.35),          # LH2's sofa

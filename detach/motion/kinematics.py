@@ -18,6 +18,7 @@ from detach.character import build_character_model
 from detach.character.body import BODY_NAMES, DOF_NAMES
 
 FOOT_BODIES = ("left_foot", "right_foot")
+_ROUND = (int(mujoco.mjtGeom.mjGEOM_SPHERE), int(mujoco.mjtGeom.mjGEOM_CAPSULE))
 """Foot order used by `FKResult.foot_*` arrays (index 0 = left)."""
 
 
@@ -80,6 +81,34 @@ class HumanoidFK:
             gmat[i] = d.geom_xmat[self.foot_geoms].reshape(-1, 3, 3)
         corners = gpos[:, :, None, :] + np.einsum("fgij,gkj->fgki", gmat, self._corner_local)
         return FKResult(body_pos=body_pos, body_mat=body_mat, foot_corners=corners)
+
+    def bottom_points(self, fk: FKResult, body: str, samples: int = 9) -> np.ndarray:
+        """[F, S, 3] the lowest surface points of `body`'s sphere and capsule geoms: below each
+        sphere's centre and below `samples` points along each capsule's axis.
+
+        A hand or knee that carries weight rests on what is under one of these points (clips
+        declare such bodies: `detach.motion.placement`); the feet use their box corners."""
+        b = BODY_NAMES.index(body)
+        ends = self._round_geoms(body)
+        local = np.concatenate([np.linspace(a, e, samples if np.any(a != e) else 1) for a, e, _ in ends])
+        radius = np.concatenate([np.full(samples if np.any(a != e) else 1, r) for a, e, r in ends])
+        pts = fk.body_pos[:, b, None, :] + np.einsum("fij,kj->fki", fk.body_mat[:, b], local)
+        pts[..., 2] -= radius
+        return pts
+
+    def _round_geoms(self, body: str) -> list[tuple[np.ndarray, np.ndarray, float]]:
+        """Per sphere/capsule geom of `body`: its axis ends (equal for a sphere) in the body
+        frame and its radius."""
+        m = self.model
+        out = []
+        for g in range(m.ngeom):
+            if m.geom_bodyid[g] != m.body(body).id or m.geom_type[g] not in _ROUND:
+                continue
+            axis = np.zeros(3)
+            mujoco.mju_rotVecQuat(axis, np.array([0.0, 0.0, 1.0]), m.geom_quat[g])
+            half = m.geom_size[g, 1] if m.geom_type[g] == int(mujoco.mjtGeom.mjGEOM_CAPSULE) else 0.0
+            out.append((m.geom_pos[g] - half * axis, m.geom_pos[g] + half * axis, float(m.geom_size[g, 0])))
+        return out
 
     def rest_body_pos(self) -> np.ndarray:
         """[15, 3] body origins at the default pose (all hinges 0, root at the origin, upright)."""

@@ -6,6 +6,13 @@ with MuJoCo's exact geom distance (`mj_geomDistance`) between non-adjacent bodie
 feet (both feet more than `FLOAT_CLEARANCE` above their support) catch clips lifted off the
 floor, e.g. by one glitched frame whose foot dipped below it before import placed the lowest
 foot on the floor.
+
+A clip may declare further support bodies, `meta["supports"]` (e.g. a climb's hands and knee
+on a box, `detach.motion.placement`). Resting on a prop is what they are there for, so they
+are measured like feet rather than as intruders: their own depth into props
+(`min_support_prop_distance`) and below their support (`lowest_support`), their slide while
+down (`support_skate`), and they count as "on the support" for the gap and floating measures.
+Every other body stays in `min_prop_distance`; clips without the key measure as before.
 """
 
 from __future__ import annotations
@@ -46,7 +53,8 @@ class Plausibility:
     lowest_foot: float
     """Minimum over frames and feet of (foot box bottom - support height); >= -0.01 required."""
     max_support_gap: float
-    """Maximum over frames of the lower foot's height above its support (0 = always one foot down)."""
+    """Maximum over frames of the lower foot's (or declared support body's) height above its
+    support (0 = always one foot down)."""
     foot_skate: float
     """Maximum horizontal speed of a foot while it is within 5 mm of its support (two frames)."""
     range_violation: float
@@ -67,15 +75,23 @@ class Plausibility:
     """Horizontal path of the root, metres (`detach.motion.travel`)."""
     path_speed: float = 0.0
     """path_length / duration, m/s."""
+    lowest_support: float = np.inf
+    """Like lowest_foot for the declared support bodies (the bottom of their spheres/capsules
+    above what is under it); >= -0.01 required; inf without `meta["supports"]`."""
+    min_support_prop_distance: float = np.inf
+    """Smallest distance between a declared support body and a prop (>= -0.01 required: it may
+    rest on the prop, not sink into it); inf without supports or props."""
+    support_skate: float = 0.0
+    """Like foot_skate for the declared support bodies (body origin speed while within 5 mm)."""
 
     def flags(self) -> list[str]:
         """Short names of what looks wrong: FLOAT (feet off the floor in most frames), BELOW
-        (a foot more than 1 cm inside its support), RANGE (a hinge outside its range),
-        SELF (limbs interpenetrate)."""
+        (a foot or declared support body more than 1 cm inside its support), RANGE (a hinge
+        outside its range), SELF (limbs interpenetrate)."""
         out = []
         if self.floating_fraction >= FLOAT_FLAG:
             out.append("FLOAT")
-        if self.lowest_foot < -0.01:
+        if min(self.lowest_foot, self.lowest_support, self.min_support_prop_distance) < -0.01:
             out.append("BELOW")
         if self.range_violation > 1e-3:
             out.append("RANGE")
@@ -92,30 +108,54 @@ def foot_clearance(clip: MotionClip) -> np.ndarray:
     return (c[..., 2] - terrain.height(c[..., :2])).min(axis=-1)
 
 
+def support_clearance(clip: MotionClip) -> np.ndarray:
+    """[F, K] lowest point of each declared support body (`meta["supports"]`, K of them) above
+    the support under it."""
+    if not _supports(clip):
+        return np.zeros((clip.num_frames, 0))
+    helper = humanoid_fk()
+    fk = helper.run(clip.root_pos, clip.root_quat, clip.dof_pos)
+    terrain = Terrain.from_meta(clip.meta.get("props"))
+    pts = (helper.bottom_points(fk, b) for b in _supports(clip))
+    return np.stack([(p[..., 2] - terrain.height(p[..., :2])).min(axis=1) for p in pts], axis=1)
+
+
+def _supports(clip: MotionClip) -> tuple[str, ...]:
+    return tuple(clip.meta.get("supports", ()))
+
+
+def _skate(pos_xy: np.ndarray, clear: np.ndarray, fps: float) -> float:
+    """Max horizontal speed [F, K, 2] of points while within 5 mm of their support for 2 frames."""
+    speed = np.zeros_like(clear)
+    if len(clear) > 1:
+        speed[1:] = np.linalg.norm(np.diff(pos_xy, axis=0), axis=-1) * fps
+    down = np.zeros_like(clear, dtype=bool)
+    down[1:] = (clear[1:] < 0.005) & (clear[:-1] < 0.005)
+    return float(speed[down].max()) if down.any() else 0.0
+
+
 def check_clip(clip: MotionClip, self_pairs=SELF_PAIRS) -> Plausibility:
     """Measure `clip`; see `Plausibility` for what each number means."""
     clear = foot_clearance(clip)
+    sup = support_clearance(clip)
+    contact = np.concatenate([clear, sup], axis=1).min(axis=1)  # [F] lowest foot or support
     rng = dof_ranges()
     viol = np.maximum(rng[:, 0] - clip.dof_pos, clip.dof_pos - rng[:, 1]).max()
     li, ri = BODY_NAMES.index("left_foot"), BODY_NAMES.index("right_foot")
-    feet = clip.body_pos[:, [li, ri], :2]
-    speed = np.zeros_like(clear)
-    if clip.num_frames > 1:
-        v = np.linalg.norm(np.diff(feet, axis=0), axis=-1) * clip.fps
-        speed[1:] = v
-    down = np.zeros_like(clear, dtype=bool)
-    down[1:] = (clear[1:] < 0.005) & (clear[:-1] < 0.005)
-    skate = float(speed[down].max()) if down.any() else 0.0
-    (self_d, self_at), (prop_d, prop_at) = _distances(clip, self_pairs)
+    skate = _skate(clip.body_pos[:, [li, ri], :2], clear, clip.fps)
+    sup_pos = clip.body_pos[:, [BODY_NAMES.index(b) for b in _supports(clip)], :2]
+    (self_d, self_at), (prop_d, prop_at), sup_prop = _distances(clip, self_pairs)
     disp = np.linalg.norm(clip.root_pos[-1, :2] - clip.root_pos[0, :2])
     travel = root_travel(clip.root_pos, clip.fps)
     return Plausibility(
-        lowest_foot=float(clear.min()), max_support_gap=float(clear.min(axis=1).max()), foot_skate=skate,
+        lowest_foot=float(clear.min()), max_support_gap=float(contact.max()), foot_skate=skate,
         range_violation=float(max(viol, 0.0)), min_self_distance=self_d, min_prop_distance=prop_d,
         mean_speed=float(disp / clip.duration) if clip.duration > 0 else 0.0,
         worst_self_pair=self_at, worst_prop_body=prop_at,
-        floating_fraction=float((clear.min(axis=1) > FLOAT_CLEARANCE).mean()),
-        path_length=travel.path_length, path_speed=travel.path_speed)
+        floating_fraction=float((contact > FLOAT_CLEARANCE).mean()),
+        path_length=travel.path_length, path_speed=travel.path_speed,
+        lowest_support=float(sup.min()) if sup.size else np.inf, min_support_prop_distance=sup_prop,
+        support_skate=_skate(sup_pos, sup, clip.fps))
 
 
 @lru_cache(maxsize=8)
@@ -129,7 +169,9 @@ def _model_with_props(props_key: tuple) -> tuple[mujoco.MjModel, list[int]]:
     return m, [m.geom(f"prop{i}").id for i in range(len(props_key))]
 
 
-def _distances(clip: MotionClip, self_pairs) -> tuple[tuple[float, str], tuple[float, str]]:
+def _distances(clip: MotionClip, self_pairs) -> tuple[tuple[float, str], tuple[float, str], float]:
+    """(min self distance, where), (min prop distance of the other bodies, where), min prop
+    distance of the declared support bodies."""
     props = tuple((tuple(p["center"]), tuple(p["half"])) for p in clip.meta.get("props", []))
     m, prop_geoms = _model_with_props(props)
     d = mujoco.MjData(m)
@@ -137,9 +179,11 @@ def _distances(clip: MotionClip, self_pairs) -> tuple[tuple[float, str], tuple[f
     body_of = {g: BODY_NAMES[m.geom_bodyid[g] - 1] for g in range(m.ngeom) if m.geom_bodyid[g] > 0}
     geoms = {n: [g for g, b in body_of.items() if b == n] for n in BODY_NAMES}
     pairs = [(g1, g2) for a, b in self_pairs for g1 in geoms[a] for g2 in geoms[b]]
-    no_feet = [g for n in BODY_NAMES if n not in ("left_foot", "right_foot") for g in geoms[n]]
-    prop_pairs = [(g, p) for g in no_feet for p in prop_geoms]  # feet vs props: foot_clearance
-    best_self, best_prop = (np.inf, ""), (np.inf, "")
+    supports = _supports(clip)
+    others = [g for n in BODY_NAMES if n not in ("left_foot", "right_foot") + supports for g in geoms[n]]
+    prop_pairs = [(g, p) for g in others for p in prop_geoms]  # feet vs props: foot_clearance
+    sup_pairs = [(g, p) for n in supports for g in geoms[n] for p in prop_geoms]
+    best_self, best_prop, best_sup = (np.inf, ""), (np.inf, ""), np.inf
     for i in range(clip.num_frames):
         d.qpos[:3], d.qpos[3:7] = clip.root_pos[i], clip.root_quat[i]
         d.qpos[fk.dof_qpos] = clip.dof_pos[i]
@@ -152,4 +196,6 @@ def _distances(clip: MotionClip, self_pairs) -> tuple[tuple[float, str], tuple[f
             dist = mujoco.mj_geomDistance(m, d, g1, g2, 1.0, None)
             if dist < best_prop[0]:
                 best_prop = (float(dist), f"{body_of[g1]}@{i}")
-    return best_self, best_prop
+        for g1, g2 in sup_pairs:
+            best_sup = min(best_sup, float(mujoco.mj_geomDistance(m, d, g1, g2, 1.0, None)))
+    return best_self, best_prop, best_sup
