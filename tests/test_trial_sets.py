@@ -140,6 +140,8 @@ def test_aids_come_from_the_config() -> None:
     assert aids("train.init_action_mean={grasp: 0.1}", "train.critic_warmup_iterations=5") == [
         "set start pose", "critic warm-up"]
     assert aids("train.balance_assist.torque=1000") == ["balance assist"]
+    assert aids("rewards.power_coeff=0") == ["no power penalty"]  # the paper's 0.0005 x W, dropped
+    assert aids("rewards.power_coeff=0.0001") == ["power penalty x0.2"]
     tokenhsi = resolve(ROOT / "configs/tasks/carry.yaml", "tokenhsi", ["env.character=puppet"])
     started = dataclasses.replace(tokenhsi, train=dataclasses.replace(tokenhsi.train, init_from="runs/x"))
     assert run_aids(tokenhsi) == [] and run_aids(started) == ["copied tokenizer"]

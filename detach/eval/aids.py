@@ -12,10 +12,12 @@ from __future__ import annotations
 
 from typing import Iterable
 
-from detach.config.schema import RunConfig
+from detach.config.schema import RewardsCfg, RunConfig
 from detach.skills import skill_class, skill_names
 
 ORACLE = "oracle"
+PAPER_POWER_COEFF = RewardsCfg().power_coeff
+"""The appendix's power penalty per watt (the default): another value is a departure a row names."""
 
 
 def _added_terms(cfg: RunConfig) -> list[str]:
@@ -60,6 +62,9 @@ def run_aids(cfg: RunConfig) -> list[str]:
         aids.append("added reward terms")
     if t.amp.enabled and t.amp.style_reward_weight == 0:
         aids.append("no style reward")  # not an aid but a departure: a row must say it
+    if rewards.power_coeff != PAPER_POWER_COEFF:  # a departure too
+        aids.append("no power penalty" if rewards.power_coeff == 0
+                    else f"power penalty x{rewards.power_coeff / PAPER_POWER_COEFF:.3g}")
     return aids
 
 
