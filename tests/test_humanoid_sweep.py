@@ -25,7 +25,7 @@ def test_the_laptop_cells_train_the_humanoid_and_end_without_the_assist() -> Non
     assist = cfg.train.balance_assist
     unassisted = cfg.train.max_iterations - assist.hold_iterations - assist.fade_iterations
     assert assist.torque > 0 and unassisted >= 300  # the policy ends on its own balance
-    assert cfg.rewards.power_coeff == 0 and not cfg.model.learn_noise_std
+    assert cfg.rewards.power_coeff == 0 and not cfg.model.learn_noise_std and cfg.train.clone_start.rounds > 0
 
 
 def test_a_quick_sweep_plays_the_test_trials_and_names_its_departures(tmp_path: Path) -> None:
@@ -36,4 +36,4 @@ def test_a_quick_sweep_plays_the_test_trials_and_names_its_departures(tmp_path: 
     assert cli.main(["table", str(SWEEP), "--preset", "quick", "--runs", str(out), "--task", "follow",
                      "--out", str(tables)]) == 0
     (row,) = csv.DictReader((tables / "humanoid_follow.csv").open())
-    assert row["method"] == "MLP + balance assist + no power penalty"
+    assert row["method"] == "MLP + critic warm-up + cloned start + balance assist + no power penalty"

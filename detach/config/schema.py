@@ -367,6 +367,20 @@ class KeepCheckpointsCfg:
 
 
 @dataclass(frozen=True)
+class CloneStartCfg:
+    """A start cloned from the motion clips (`detach.train.clip_clone`), a training aid for the
+    humanoid: before the first PPO iteration of a run from scratch the actor is fitted to the
+    clips' own hinge targets, played open-loop from reference starts for `rounds` resets of
+    `steps` control steps each, over `epochs` passes. From a random actor the humanoid's PPO
+    settled on standing still; from the clone it steps. `rounds` 0 (the default) disables it."""
+
+    rounds: int = ranged(0, AT_LEAST_0)
+    steps: int = ranged(45, AT_LEAST_1)
+    """Control steps per reset (1.5 s at 30 Hz: a clip is rarely longer before the humanoid falls)."""
+    epochs: int = ranged(30, AT_LEAST_1)
+
+
+@dataclass(frozen=True)
 class BalanceAssistCfg:
     """A training aid for the humanoid (an assistive-force curriculum, as in Yu, Turk and Liu
     2018): a spring-damper torque on the pelvis that rights its tilt (roll and pitch, never
@@ -488,6 +502,7 @@ class TrainCfg:
     weighted sum; otherwise the weighted sum is normalised as one."""
     amp: AmpCfg = AmpCfg()
     balance_assist: BalanceAssistCfg = BalanceAssistCfg()
+    clone_start: CloneStartCfg = CloneStartCfg()
     stages: StagesCfg = StagesCfg()
     teachers: dict[str, str] = field(default_factory=dict)
     """Kickstarting (`detach.train.teachers`): skill -> a run folder or checkpoint whose policy

@@ -56,6 +56,8 @@ def run_aids(cfg: RunConfig) -> list[str]:
         aids.append("copied tokenizer")  # TokenHSI's new skill starts from a trained skill's tokenizer
     if t.action_bound_coef > 0 and cfg.model_name not in ("tokenhsi", "tokenhsi_adapt"):
         aids.append("action-bound loss")  # TokenHSI's own loss; an addition to the others
+    if t.clone_start.rounds > 0:
+        aids.append("cloned start")  # the actor fitted to the clips' hinge targets before PPO
     if t.balance_assist.torque > 0 or t.balance_assist.damping > 0:
         aids.append("balance assist")  # a righting torque on the pelvis while training
     if _added_terms(cfg) or rewards.done_subtask_reward > 0:

@@ -34,6 +34,7 @@ from detach.runs.mcap_log import RunLogWriter
 from detach.runs.policy import load_policy
 from detach.runs.provenance import write_provenance
 from detach.runs.start_choice import choose_action_means
+from detach.train.clip_clone import start_from_clone
 from detach.train.checkpoints import CheckpointError, run_policy_checkpoint
 from detach.train.setup import (
     apply_torch_threads, build_runner, load_initial_weights, prepare_assets, seed_everything, train_cfg_dict,
@@ -67,6 +68,8 @@ def train_and_evaluate(run: RunFolder, cfg: RunConfig, resume: bool, eval_tasks:
                 print(load_initial_weights(runner, cfg), flush=True)
                 if cfg.train.init_action_mean_choices:
                     print(choose_action_means(runner.alg.actor, cfg, device), flush=True)
+            elif cfg.train.clone_start.rounds:
+                print(start_from_clone(runner, cfg, run.path, log=lambda line: print(line, flush=True)), flush=True)
             log.log_scene(scene_message(env, cfg))
         runner.on_iteration = lambda it, _m: run.set_state("running", iteration=it + 1)
         runner.episode_recorder = TrainingEpisodes(log)

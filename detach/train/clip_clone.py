@@ -13,6 +13,7 @@ fitted by mean squared error; the runner's checkpoint is a start for `train.init
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from pathlib import Path
 from typing import Callable
@@ -23,7 +24,7 @@ from detach.character.actions import pd_actions
 from detach.config.schema import RunConfig
 from detach.motion.builtin import default_motion_lib
 from detach.train.motion_bridge import motion_label_weights, reset_reference_sampler, start_clip_labels
-from detach.train.setup import build_runner
+from detach.train.setup import build_runner, load_initial_weights
 
 
 def clone_clip_start(cfg: RunConfig, out: Path, rounds: int = 60, steps: int = 45, epochs: int = 30,
@@ -90,3 +91,19 @@ def clone_clip_start(cfg: RunConfig, out: Path, rounds: int = 60, steps: int = 4
         log(f"closed loop, assist {gains[0]:g}/{gains[1]:g}: {figures[f'{key}_steps']:.1f} steps before the first "
             f"episode end, {figures[f'{key}_walked_m']:.2f} m walked")
     return figures
+
+
+CLONE_FILE = "clone_start.pt"
+"""Where a run with `train.clone_start` keeps the start it cloned (in its run folder)."""
+
+
+def start_from_clone(runner, cfg: RunConfig, run_dir: Path, log: Callable[[str], None] = print) -> str:
+    """`train.clone_start`: clone a start with the run's own env and model settings (every
+    start a reference state, the clips played without the balance assist), write it to
+    `run_dir`/CLONE_FILE and load it into `runner` as `train.init_from` would; its critic and
+    discriminator are the untrained ones the run had. Returns the log line of the load."""
+    c = cfg.train.clone_start
+    clone_cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, init="random"))
+    out = Path(run_dir) / CLONE_FILE
+    clone_clip_start(clone_cfg, out, c.rounds, c.steps, c.epochs, log=log)
+    return load_initial_weights(runner, dataclasses.replace(cfg, train=dataclasses.replace(cfg.train, init_from=str(out))))

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Sequence
 
 from detach.character import character_class
+from detach.character.body import NUM_DOF
 from detach.config import ConfigError, RunConfig, resolve
 from detach.envs.rewards import check_reward_terms
 from detach.models.registry import model_class
@@ -118,6 +119,13 @@ def complete_run_config(cfg: RunConfig) -> RunConfig:
     if cfg.train.teacher_only and not cfg.train.teachers:
         raise origin.error(("train", "teacher_only"), "distils the policies of train.teachers, and there are none: "
                            "add +train.teachers.SKILL=RUN or set it to false")
+    if cfg.train.clone_start.rounds and cfg.train.init_from:
+        raise origin.error(("train", "clone_start", "rounds"), "clones a start for a run from scratch, and "
+                           "train.init_from gives it one: set rounds to 0 or drop train.init_from")
+    if cfg.train.clone_start.rounds and character.num_actions != NUM_DOF:
+        raise origin.error(("train", "clone_start", "rounds"), f"fits the actor to the clips' hinge targets, and "
+                           f"character '{cfg.env.character}' acts on more than its {NUM_DOF} hinges; use "
+                           "env.character=humanoid")
     base_key = cfg.model.builds_on()
     if base_key and not cfg.train.init_from:
         raise origin.error(("model", base_key), f"model {cfg.model_name} trains on top of an earlier stage's "
