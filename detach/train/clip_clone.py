@@ -106,4 +106,5 @@ def start_from_clone(runner, cfg: RunConfig, run_dir: Path, log: Callable[[str],
     clone_cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, init="random"))
     out = Path(run_dir) / CLONE_FILE
     clone_clip_start(clone_cfg, out, c.rounds, c.steps, c.epochs, log=log)
-    return load_initial_weights(runner, dataclasses.replace(cfg, train=dataclasses.replace(cfg.train, init_from=str(out))))
+    start = dataclasses.replace(cfg, train=dataclasses.replace(cfg.train, init_from=str(out)))
+    return load_initial_weights(runner, start)
