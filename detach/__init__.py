@@ -51,6 +51,9 @@ PUBLIC: dict[str, tuple[str, ...]] = {
                          "build_character_model", "add_floor", "configure_options"),
     "detach.character.body": ("BODY_NAMES", "DOF_NAMES", "FEET", "FOOT_TO_SOLE"),
     "detach.character.puppet": ("GRASP_ACTION",),
+    # motion clips: the built-in library (what the style reward and reference starts read)
+    "detach.motion.clip": ("MotionClip",),
+    "detach.motion.builtin": ("builtin_clips",),
     # models
     "detach.models": ("StructuredModel", "register_model", "build_actor_critic", "paper_label"),
     "detach.models.configs": ("MLPCfg", "DetachCfg", "TokenHSICfg", "CMLCfg"),
@@ -92,6 +95,8 @@ if TYPE_CHECKING:  # what type checkers and editors see; tests/test_architecture
     )
     from detach.character.body import BODY_NAMES, DOF_NAMES, FEET, FOOT_TO_SOLE
     from detach.character.puppet import GRASP_ACTION
+    from detach.motion.builtin import builtin_clips
+    from detach.motion.clip import MotionClip
     from detach.cli import main as cli_main
     from detach.config import (
         ConfigError, ModelCfg, RunConfig, builtin_configs, dump, find_task_file, load_run_config, load_task,

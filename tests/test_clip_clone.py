@@ -39,7 +39,7 @@ def test_a_run_from_scratch_with_clone_start_trains_from_its_clone_and_names_the
     (run,) = find_runs(out)
     log = run.stdout_path.read_text()
     assert (run.path / "clone_start.pt").is_file() and "closed loop, assist 0/0" in log
-    assert f"initialised from {run.path / 'clone_start.pt'}" in log
+    assert f"initialised from {run.path / 'clone_start.pt'} (model mlp (mlp)" in log
     assert run.config().env.init == "mixed" and run_aids(run.config()) == ["cloned start"]
 
 

@@ -76,6 +76,7 @@ def clone_clip_start(cfg: RunConfig, out: Path, rounds: int = 60, steps: int = 4
         if epoch % 10 == 0 or epoch == epochs - 1:
             log(f"epoch {epoch}: mse {total / n:.5f} (action variance {variance:.5f})")
     out.parent.mkdir(parents=True, exist_ok=True)
+    runner.model_name, runner.model_kind = cfg.model_name, cfg.model.kind  # named in the file's infos
     runner.save(str(out))
     log(f"wrote {out}")
     for gains in dict.fromkeys(((0.0, 0.0), tuple(assist))):  # once when the assist is off

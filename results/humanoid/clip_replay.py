@@ -18,10 +18,7 @@ import argparse
 import mujoco
 import numpy as np
 
-from detach.character import build_character_model
-from detach.character.body import DOF_NAMES
-from detach.motion.builtin import builtin_clips
-from detach.motion.clip import MotionClip
+from detach import DOF_NAMES, MotionClip, build_character_model, builtin_clips
 
 CONTROL_HZ = 30.0
 ASSIST = (500.0, 15.0)
