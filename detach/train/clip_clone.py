@@ -8,7 +8,8 @@ random`), remembers the clip and time each env got, and plays the clip's next fr
 targets (`pd_actions`) for `steps` control steps, keeping (observation, action) while the
 episode lasts and the clip has frames. The actor (its observation normaliser included) is then
 fitted by mean squared error; the runner's checkpoint is a start for `train.init_from` (with
-`train.critic_warmup_iterations`: its critic is untrained).
+`train.critic_warmup_iterations`: its critic is untrained), or a run clones its own start
+before its first iteration (`train.clone_start`, `start_from_clone`).
 """
 
 from __future__ import annotations
