@@ -18,8 +18,9 @@ from detach.character import build_character_model
 from detach.character.body import BODY_NAMES, DOF_NAMES
 
 FOOT_BODIES = ("left_foot", "right_foot")
-_ROUND = (int(mujoco.mjtGeom.mjGEOM_SPHERE), int(mujoco.mjtGeom.mjGEOM_CAPSULE))
 """Foot order used by `FKResult.foot_*` arrays (index 0 = left)."""
+_ROUND = (int(mujoco.mjtGeom.mjGEOM_SPHERE), int(mujoco.mjtGeom.mjGEOM_CAPSULE))
+"""Geom types whose lowest surface point is below a point of their axis (`bottom_points`)."""
 
 
 @dataclass

@@ -102,22 +102,20 @@ class Plausibility:
 
 def foot_clearance(clip: MotionClip) -> np.ndarray:
     """[F, 2] lowest point of each foot box (left, right) above the support under it."""
-    fk = humanoid_fk().run(clip.root_pos, clip.root_quat, clip.dof_pos)
-    c = fk.foot_corners  # [F, 2, 8, 3]
-    terrain = Terrain.from_meta(clip.meta.get("props"))
-    return (c[..., 2] - terrain.height(c[..., :2])).min(axis=-1)
+    return _clearances(clip)[0]
 
 
-def support_clearance(clip: MotionClip) -> np.ndarray:
-    """[F, K] lowest point of each declared support body (`meta["supports"]`, K of them) above
-    the support under it."""
-    if not _supports(clip):
-        return np.zeros((clip.num_frames, 0))
+def _clearances(clip: MotionClip) -> tuple[np.ndarray, np.ndarray]:
+    """([F, 2] feet as `foot_clearance`, [F, K] the lowest point of each declared support body
+    (`meta["supports"]`, K of them) above the support under it), from one forward pass."""
     helper = humanoid_fk()
     fk = helper.run(clip.root_pos, clip.root_quat, clip.dof_pos)
     terrain = Terrain.from_meta(clip.meta.get("props"))
-    pts = (helper.bottom_points(fk, b) for b in _supports(clip))
-    return np.stack([(p[..., 2] - terrain.height(p[..., :2])).min(axis=1) for p in pts], axis=1)
+    c = fk.foot_corners  # [F, 2, 8, 3]
+    feet = (c[..., 2] - terrain.height(c[..., :2])).min(axis=-1)
+    pts = [helper.bottom_points(fk, b) for b in _supports(clip)]  # [F, S, 3] each
+    sup = [(p[..., 2] - terrain.height(p[..., :2])).min(axis=1) for p in pts]
+    return feet, np.stack(sup, axis=1) if sup else np.zeros((clip.num_frames, 0))
 
 
 def _supports(clip: MotionClip) -> tuple[str, ...]:
@@ -136,8 +134,7 @@ def _skate(pos_xy: np.ndarray, clear: np.ndarray, fps: float) -> float:
 
 def check_clip(clip: MotionClip, self_pairs=SELF_PAIRS) -> Plausibility:
     """Measure `clip`; see `Plausibility` for what each number means."""
-    clear = foot_clearance(clip)
-    sup = support_clearance(clip)
+    clear, sup = _clearances(clip)
     contact = np.concatenate([clear, sup], axis=1).min(axis=1)  # [F] lowest foot or support
     rng = dof_ranges()
     viol = np.maximum(rng[:, 0] - clip.dof_pos, clip.dof_pos - rng[:, 1]).max()
