@@ -74,6 +74,12 @@ class DetachFeatures:
     fusion: FusionOutput
 
 
+PRETRAIN_HEADS = ("env_decoder", "self_decoder", "predictor")
+"""DetachTrunk's modules trained only by the auxiliary losses (Decoder_env, Decoder_self, f_pred)."""
+ANCHORS = ("env_anchor", "self_anchor")
+"""DetachTrunk's copies θ*_env, θ*_self of the encoders, read only by R1/R2."""
+
+
 class DetachTrunk(nn.Module):
     """Named groups {self [N,T,d], env [N,T,d], task [N,S], extras [N,D]} -> latent [N, out_dim]."""
 
@@ -235,7 +241,7 @@ class DetachTrunk(nn.Module):
 
     def pretrain_head_modules(self) -> list[nn.Module]:
         """Decoder_env, Decoder_self, f_pred: trained only by the auxiliary losses."""
-        return [m for m in (self.env_decoder, self.self_decoder, self.predictor) if m is not None]
+        return [m for m in (getattr(self, n) for n in PRETRAIN_HEADS) if m is not None]
 
     def fusion_parameters(self) -> Iterator[nn.Parameter]:
         """P_env, P_self, the fusion module, the task/extra tokens, positions and φ."""
@@ -246,8 +252,7 @@ class DetachTrunk(nn.Module):
     def training_only_modules(self) -> list[str]:
         """Names of the pre-training heads and R1/R2's anchors: read by the losses, never by
         the latent (about 30% of DETACH's actor at the default sizes)."""
-        names = ("env_decoder", "self_decoder", "predictor", "env_anchor", "self_anchor")
-        return [n for n in names if getattr(self, n) is not None]
+        return [n for n in (*PRETRAIN_HEADS, *ANCHORS) if getattr(self, n) is not None]
 
     def snapshot_encoders(self) -> None:
         """Store θ*_env, θ*_self (end of pre-training) for R1/R2."""
@@ -363,8 +368,7 @@ class DetachModel(StructuredModel):
     def load_encoders_from(self, other: DetachModel) -> None:
         """Copy encoders, their pre-training heads and anchors from another DETACH model (actor -> critic)."""
         t, o = self.trunk, other.trunk
-        names = ("env_encoder", "env_decoder", "self_encoder", "self_decoder", "predictor", "env_anchor", "self_anchor")
-        for name in names:
+        for name in ("env_encoder", "self_encoder", *PRETRAIN_HEADS, *ANCHORS):
             mine, theirs = getattr(t, name), getattr(o, name)
             if (mine is None) != (theirs is None):
                 raise ValueError(f"cannot copy {name}: present in only one of the two models")
