@@ -300,6 +300,11 @@ class StructuredModel(MLPModel):
             yield from self.distribution.parameters()
 
 
+def new_parameter_prefixes(module: nn.Module) -> tuple[str, ...]:
+    """`module.new_parameter_prefixes()`, or none for a model without the method (rsl-rl's MLP)."""
+    return tuple(getattr(module, "new_parameter_prefixes", lambda: ())())
+
+
 def training_only_prefixes(module: nn.Module) -> tuple[str, ...]:
     """`module.training_only_prefixes()`, or none for a model without the method (rsl-rl's MLP)."""
     return tuple(getattr(module, "training_only_prefixes", lambda: ())())

@@ -22,6 +22,7 @@ from detach.config.schema import RunConfig, TaskCfg
 from detach.envs.lh_env import LHEnv
 from detach.models.factory import DEFAULT_OBS_GROUPS, rsl_rl_model_cfgs
 from detach.models.losses import combine_aux_losses
+from detach.models.structured import new_parameter_prefixes
 from detach.motion import default_motion_lib
 from detach.runfolder.folder import RunFolder
 from detach.runfolder.names import CONFIG_FILE
@@ -226,7 +227,7 @@ def load_initial_weights(runner: DetachRunner, cfg: RunConfig) -> str:
     for name, module, source in parts:
         if not isinstance(source, dict):
             raise ConfigError(f"train.init_from: {checkpoint} has no {name} weights")
-        new = tuple(getattr(module, "new_parameter_prefixes", lambda: ())())
+        new = new_parameter_prefixes(module)
         problems = _fit(module.state_dict(), source, new)
         if problems:
             raise ConfigError(f"train.init_from: {checkpoint} holds model {source_model}, which does not fit "
@@ -358,7 +359,7 @@ def _normalizers(modules: Sequence[torch.nn.Module]
     frozen: the input normaliser of a frozen pre-trained policy (`new_parameter_prefixes()`
     non-empty: TokenHSI's adapters, CML's cooperative policy), which is never updated."""
     for module in modules:
-        frozen_base = bool(getattr(module, "new_parameter_prefixes", lambda: ())())
+        frozen_base = bool(new_parameter_prefixes(module))
         for name, sub in module.named_modules():
             if isinstance(sub, EmpiricalNormalization):
                 yield module, name, sub, frozen_base and name == "obs_normalizer"
