@@ -1,7 +1,7 @@
 """A start for PPO cloned from the motion clips: the actor fitted to the clips' own hinge
 targets, played open-loop from reference-state starts (behaviour cloning).
 
-Why: the humanoid's PPO runs sat in a standing pose (results/humanoid/README.md); a policy
+Why: the humanoid's PPO runs sat in a standing pose (results/humanoid/NOTEBOOK.md); a policy
 that starts out stepping like the clips gives PPO a gait to refine instead of one to find.
 Each round resets every env of the run's training env at a reference state (`env.init:
 random`), remembers the clip and time each env got, and plays the clip's next frames as PD
