@@ -77,11 +77,13 @@ def main() -> None:
     parser.add_argument("--assist", type=float, nargs=2, metavar=("TORQUE", "DAMPING"))
     args = parser.parse_args()
     run = RunFolder(args.run)
-    checkpoint = args.checkpoint or max((args.run / "checkpoints").glob("model_*.pt"),
-                                        key=lambda p: int(p.stem.split("_")[1]))
+    checkpoint = args.checkpoint or run.latest_checkpoint()
+    if checkpoint is None:
+        raise SystemExit(f"{args.run}: no checkpoint in checkpoints/")
+    cfg = run.config()
     print(f"{args.run.name}, {checkpoint.name}, {args.envs} development trials, mean actions")
     for assist in [(0.0, 0.0)] + ([tuple(args.assist)] if args.assist else []):
-        print(rollout(run.config(), checkpoint, args.envs, assist), flush=True)
+        print(rollout(cfg, checkpoint, args.envs, assist), flush=True)
 
 
 if __name__ == "__main__":
