@@ -246,7 +246,8 @@ def build_eval_parser() -> argparse.ArgumentParser:
     _add_trials(parser)
     _add_test_trials(parser)
     parser.add_argument("--replace", action="store_true",
-                        help="replace an evaluation of the same task with more trials (refused otherwise)")
+                        help="replace an evaluation of the same task that has more trials than this one "
+                             "(refused otherwise; one with as many trials or more is replaced without it)")
     _add_device(parser)
     _add_video(parser, "env 0's first evaluation episode")
     return parser
