@@ -25,13 +25,19 @@ DIGESTS = {
     "lh1_recorded": "c6a920b7b122d00dc2ef42b030b6a2268c8788b4d59105d0a4a53bb6fe70e04b",
 }
 OTHER_CPU_DIGESTS = {
-    "lh1_recorded": {"4d6cd084ea37c191b8b520a0ae0f45956c5cdd24d418db5a69b4d612b68892b1"},
+    "lh1": {"8e96571888b03ba47a46f14f10df372485d564635ef1e41a3144bea1d7164dad"},
+    "lh1_humanoid_mixed": {"5fdddeecb28372d2b1cc24ace756ccf469c2b3700b40e7f60785cc7a902db305"},
+    "carry_held": {"1fe992dff375d329c8fa782f61a7749ac97942dc4f81d1c6083fa8811805d855"},
+    "lh1_recorded": {"4d6cd084ea37c191b8b520a0ae0f45956c5cdd24d418db5a69b4d612b68892b1",
+                     "fac8079e4996f17deade3bde866497e9841f12468c02e50cd04ca5353361cb45"},
 }
-"""The same code's digests on another CPU kind (an AMD EPYC, 2026-12-07: the digest above
-recorded at `df00586` and after gives this one there, run after run): the later-subtask starts
-come from the scripted oracle's recorded rollout, in which float rounding that differs between
-CPU kinds' kernels grows into different states. Only a digest seen from unchanged code goes
-here."""
+"""The same code's digests on other CPU kinds, run after run: an AMD EPYC (2026-12-07, the
+digest above recorded at `df00586` and after gives the first `lh1_recorded` one there: the
+later-subtask starts come from the scripted oracle's recorded rollout, in which float rounding
+that differs between CPU kinds' kernels grows into different states), and an "Intel(R) Xeon(R)
+Processor" (2026-12-07, at `7c780df`, whose env code is `4579105`'s, which passed on the
+recording CPU kind: every case differs there, as MuJoCo's kernels round differently). Only a
+digest seen from unchanged code goes here."""
 CASES = {
     "lh1": ("lh1", ["env.character=puppet"]),
     "lh1_humanoid_mixed": ("lh1", ["env.character=humanoid", "env.init=mixed"]),
