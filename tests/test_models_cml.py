@@ -123,8 +123,8 @@ def test_ppo_on_the_incremental_stage_moves_only_the_cooperative_policy(tmp_path
     actor.load_state_dict(base.alg.actor.state_dict(), strict=False)
     critic.load_state_dict(base.alg.critic.state_dict())
     obs = env.get_observations()
-    with torch.no_grad():
-        assert torch.equal(actor(obs), base.alg.actor(obs))
+    with torch.no_grad():  # equal up to float rounding: CPU kinds differ in the last bits here
+        assert torch.allclose(actor(obs), base.alg.actor(obs), atol=1e-6, rtol=1e-6)
     before = {k: v.clone() for k, v in actor.state_dict().items()}
     critic_before = {k: v.clone() for k, v in critic.state_dict().items()}
     runner.learn(1)
