@@ -234,3 +234,21 @@ def test_a_sweeps_policies_ship_with_a_manifest_whose_figures_eval_repeats(
     capsys.readouterr()
     assert cli.main(["export", str(sweep), "--preset", "tiny", "--runs", str(out), "--output", str(shipped)]) == 2
     assert "--stage" in capsys.readouterr().err
+
+
+def test_shipping_into_a_folder_of_another_presets_policies_is_refused(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A second preset's export into the same --output would overwrite the manifest of the
+    policies already there (they would lose their figures); it is refused, nothing written."""
+    sweep, out, shipped = _one_stage_sweep(tmp_path), tmp_path / "runs", tmp_path / "policies"
+    assert cli.main(["sweep", str(sweep), "--preset", "tiny", "--runs", str(out)]) == 0
+    shipped.mkdir()
+    other = {"sweep": "one_stage", "preset": "laptop_paper", "stage": "follow", "policies": [{"file": "x.policy.pt"}]}
+    (shipped / "manifest.json").write_text(json.dumps(other))
+    capsys.readouterr()
+    assert cli.main(["export", str(sweep), "--preset", "tiny", "--stage", "follow", "--runs", str(out),
+                     "--output", str(shipped), "--format", "policy"]) == 2
+    err = capsys.readouterr().err
+    assert "laptop_paper" in err and "--output" in err
+    assert json.loads((shipped / "manifest.json").read_text()) == other
+    assert not list(shipped.glob("*.policy.pt"))

@@ -12,6 +12,7 @@ cell's own figure is listed beside it).
 from __future__ import annotations
 
 import hashlib
+import json
 import sys
 from pathlib import Path
 from typing import Callable, Sequence
@@ -41,6 +42,23 @@ def _figures(result_path: Path) -> dict:
             "subtasks": {f"{s.index}:{s.skill}": s.rate for s in e.subtasks}, "aids": e.aids}
 
 
+def _refuse_foreign_manifest(manifest: Path, sweep: str, preset: str | None, stage: str) -> None:
+    """One manifest per folder: shipping another sweep, preset or stage into a folder would
+    overwrite the manifest of the policies already there, which then lose their figures."""
+    if not manifest.exists():
+        return
+    try:
+        held = json.loads(manifest.read_text())
+        found = (held["sweep"], held["preset"], held["stage"])
+    except (OSError, ValueError, KeyError, TypeError):
+        raise ConfigError("--output holds a manifest.json that is not a policy manifest; expected a folder "
+                          "without one or with this sweep's", str(manifest)) from None
+    if found != (sweep, preset, stage):
+        raise ConfigError(f"--output holds the policies of sweep {found[0]}, preset {found[1]}, stage {found[2]}; "
+                          f"shipping {sweep}, preset {preset}, stage {stage} there would overwrite their "
+                          f"manifest: choose another --output", str(manifest))
+
+
 def ship_sweep(sweep_path: Path, runs_dir: Path, out: Path, stage: str, preset: str | None = None,
                seeds: Sequence[int] | None = None, models: Sequence[str] | None = None,
                trials: int | None = None, device: str = "cpu",
@@ -54,6 +72,7 @@ def ship_sweep(sweep_path: Path, runs_dir: Path, out: Path, stage: str, preset: 
         raise ConfigError(f"no cell of stage '{stage}'" + (f" of {', '.join(models)}" if models else "")
                           + f" in sweep {sweep.name}; stages: {', '.join(s.name for s in sweep.stages)}",
                           str(sweep_path))
+    _refuse_foreign_manifest(out / MANIFEST, sweep.name, sweep.preset, stage)
     runs = existing_runs(runs_dir)
     out.mkdir(parents=True, exist_ok=True)
     entries = []
