@@ -12,7 +12,6 @@ cell's own figure is listed beside it).
 from __future__ import annotations
 
 import hashlib
-import json
 import sys
 from pathlib import Path
 from typing import Callable, Sequence
@@ -20,7 +19,7 @@ from typing import Callable, Sequence
 from detach.config import ConfigError
 from detach.runs.export import export_run
 from detach.runfolder.atomic import atomic_write_json, atomic_write_text
-from detach.runfolder.folder import RunFolder, read_eval
+from detach.runfolder.folder import RunFolder, read_eval, read_json
 from detach.runs.provenance import last_git
 from detach.runs.session import eval_config, eval_path, evaluate_policy_file
 from detach.runs.sweep_config import load_sweep
@@ -48,7 +47,7 @@ def _refuse_foreign_manifest(manifest: Path, sweep: str, preset: str | None, sta
     if not manifest.exists():
         return
     try:
-        held = json.loads(manifest.read_text())
+        held = read_json(manifest)  # bounded: a policy folder may come from elsewhere
         found = (held["sweep"], held["preset"], held["stage"])
     except (OSError, ValueError, KeyError, TypeError):
         raise ConfigError("--output holds a manifest.json that is not a policy manifest; expected a folder "
