@@ -188,3 +188,27 @@ def test_export_through_the_cli(tmp_path: Path, capsys: pytest.CaptureFixture[st
     assert "exported to" in capsys.readouterr().out
     assert cli.main(["export", str(run.path), "--checkpoint", "9"]) == 2
     assert "no model_9.pt (the run has 3)" in capsys.readouterr().err
+
+
+def test_a_symlinked_assets_or_runs_folder_does_not_make_the_provenance_dirty(tmp_path: Path) -> None:
+    """A work tree whose assets/ and runs/ are symlinks (a second checkout sharing the built
+    assets) is as clean as one holding them: the .gitignore patterns match links too."""
+    import shutil
+    import subprocess
+
+    from detach.runs.provenance import git_state
+
+    if shutil.which("git") is None:
+        pytest.skip("git is not installed")
+    repo = tmp_path / "checkout"
+    repo.mkdir()
+    (repo / ".gitignore").write_text((ROOT / ".gitignore").read_text())
+    git = ["git", "-c", "user.name=t", "-c", "user.email=t@t", "-C", str(repo)]
+    subprocess.run([*git, "init", "-q"], check=True)
+    subprocess.run([*git, "add", ".gitignore"], check=True)
+    subprocess.run([*git, "commit", "-q", "-m", "init"], check=True)
+    for name in ("assets", "runs"):
+        (tmp_path / name).mkdir()
+        (repo / name).symlink_to(tmp_path / name)
+    state = git_state(repo)
+    assert state is not None and state["untracked"] == [] and state["dirty"] is False

@@ -128,6 +128,31 @@ def test_a_table_row_names_its_aids_and_marks_a_recipe_chosen_after_a_test_evalu
     assert [r["method"] for r in csv.DictReader((tables / "one_stage_follow.csv").open())] == ["MLP"]
 
 
+def test_a_sweep_table_says_which_code_trained_its_cells(tmp_path: Path) -> None:
+    """A cell key digests the config, not the code: cells of one key trained in two sessions
+    under different code pool into one row, so the table names the commits."""
+    sweep, out, tables = _one_stage_sweep(tmp_path), tmp_path / "runs", tmp_path / "tables"
+    assert cli.main(["sweep", str(sweep), "--preset", "tiny", "--seeds", "0,1", "--runs", str(out)]) == 0
+    runs = sorted(find_runs(out), key=lambda r: r.path.name)
+    assert len(runs) == 2
+
+    def trained_at(run, commit: str, diff: str = "") -> None:
+        record = {"time": "2026-12-07T00:00:00+00:00", "git": {"commit": commit, "diff": diff}}
+        run.provenance_path.write_text(json.dumps({"runs": [record]}))
+
+    table = ["table", str(sweep), "--preset", "tiny", "--seeds", "0,1", "--runs", str(out), "--task", "follow",
+             "--out", str(tables)]
+    for run in runs:
+        trained_at(run, "a" * 40)
+    assert cli.main(table) == 0
+    assert "Code: every cell trained at commit aaaaaaa." in (tables / "one_stage_follow_seeds0-1.md").read_text()
+    trained_at(runs[1], "b" * 40, diff="diff --git a/x b/x")
+    assert cli.main(table) == 0
+    md = (tables / "one_stage_follow_seeds0-1.md").read_text()
+    assert ("Code: the cells were trained at 2 commits: aaaaaaa (1 cell), bbbbbbb with uncommitted changes "
+            "(1 cell)") in md
+
+
 def test_aids_come_from_the_config() -> None:
     def aids(*overrides: str) -> list[str]:
         return run_aids(resolve(ROOT / "configs/tasks/lh1.yaml", "detach", ["env.character=puppet", *overrides]))

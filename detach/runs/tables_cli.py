@@ -15,6 +15,8 @@ Five guards keep a table honest:
   of an earlier version, without an id, by its name);
 - a file that does not follow the contract, or holds impossible numbers (NaN, a rate
   outside [0, 1], zero trials), is left out with a line on stderr saying which and why.
+
+A sweep's table also notes the commit(s) its cells were trained at (`code_note`).
 """
 
 from __future__ import annotations
@@ -165,9 +167,12 @@ def print_table(source: Path, runs_dir: Path, kind: str | None, out: Path | None
     if task is not None and task not in evaluated:  # else an empty table, exit 0: a typo looks like no result
         raise ConfigError(f"--task: no evaluation of task '{task}' (evaluated: {', '.join(evaluated)})",
                           str(source))
+    code = code_note(curves) if curves else None
     for k in kinds:
         table = render(k, evals, task, sgr_variant)
         table.notes.append(describe(trial_set, offset))
+        if code:
+            table.notes.append(code)
         if not table.rows:  # e.g. a sweep in progress: phase A evaluated, its LH1 cells not yet
             _stderr(f"{k}: no run evaluated on this table's task yet (evaluated: {', '.join(evaluated)}; "
                     f"--task NAME tables one of those); nothing written")
@@ -194,6 +199,29 @@ def print_table(source: Path, runs_dir: Path, kind: str | None, out: Path | None
         for path in write_sweep_curves(curves, out, name + seeded, title, _stderr):
             print(f"written: {path}")
     return 0
+
+
+def code_note(runs: Mapping[str, RunFolder]) -> str | None:
+    """Which code trained the sweep's cells (their provenance.json), for the table's notes. A
+    cell's key digests its config, not the code, so one table can pool cells that the same
+    key trained under different code (a reward or clip change between sessions); the note
+    makes that visible. None when no cell's commit is known."""
+    from detach.runs.provenance import last_git
+
+    counts: dict[str, int] = {}
+    for run in runs.values():
+        git = last_git(run) or {}
+        if not git.get("commit"):
+            continue
+        commit = str(git["commit"])[:7] + (" with uncommitted changes" if git.get("diff") else "")
+        counts[commit] = counts.get(commit, 0) + 1
+    if not counts:
+        return None
+    if len(counts) == 1:
+        return f"Code: every cell trained at commit {next(iter(counts))}."
+    listed = ", ".join(f"{c} ({n} cell{'s' if n > 1 else ''})" for c, n in sorted(counts.items(), key=lambda x: -x[1]))
+    return (f"Code: the cells were trained at {len(counts)} commits: {listed}; a cell's key digests its config, "
+            f"not the code (each cell's provenance.json).")
 
 
 AFTER_TEST = "recipe chosen after a test evaluation"

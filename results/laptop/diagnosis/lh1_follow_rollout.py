@@ -4,18 +4,21 @@ rule's 0.3 m) and to the moving reference point, the share of steps on the path 
 share still in Follow.
 
     python results/laptop/diagnosis/lh1_follow_rollout.py RUN_DIR CHECKPOINT.pt [TASK, default lh1]
+    python results/laptop/diagnosis/lh1_follow_rollout.py - POLICY.policy.pt [TASK]   (a shipped policy)
 """
 import sys
 from pathlib import Path
 
 import torch
 
-from detach import RunFolder, distance_to_polyline, eval_config, load_policy, make_env, seed_everything
+from detach import (RunFolder, distance_to_polyline, eval_config, load_policy, load_run_config, make_env,
+                    seed_everything)
 
 NUM_ENVS = 8
 
-run = RunFolder(Path(sys.argv[1]))
-cfg = eval_config(run.config(), Path(f"configs/tasks/{sys.argv[3] if len(sys.argv) > 3 else 'lh1'}.yaml"))
+train_cfg = (load_run_config(Path(sys.argv[2].removesuffix(".pt") + ".yaml")) if sys.argv[1] == "-"
+             else RunFolder(Path(sys.argv[1])).config())
+cfg = eval_config(train_cfg, Path(f"configs/tasks/{sys.argv[3] if len(sys.argv) > 3 else 'lh1'}.yaml"))
 seed_everything(1)
 env = make_env(cfg, num_envs=NUM_ENVS, device="cpu", eval_mode=True)
 actor, _ = load_policy(cfg, env, Path(sys.argv[2]))
