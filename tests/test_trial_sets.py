@@ -145,12 +145,13 @@ def test_a_sweep_table_says_which_code_trained_its_cells(tmp_path: Path) -> None
     for run in runs:
         trained_at(run, "a" * 40)
     assert cli.main(table) == 0
-    assert "Code: every cell trained at commit aaaaaaa." in (tables / "one_stage_follow_seeds0-1.md").read_text()
+    md = (tables / "one_stage_follow_seeds0-1.md").read_text()
+    assert "Code: the sweep's 2 cells in the runs folder: trained at commit aaaaaaa." in md
     trained_at(runs[1], "b" * 40, diff="diff --git a/x b/x")
     assert cli.main(table) == 0
     md = (tables / "one_stage_follow_seeds0-1.md").read_text()
-    assert ("Code: the cells were trained at 2 commits: aaaaaaa (1 cell), bbbbbbb with uncommitted changes "
-            "(1 cell)") in md
+    assert ("trained at 2 commits, aaaaaaa (1 cell), bbbbbbb with uncommitted changes (1 cell); a cell's key "
+            "digests its config, not the code") in md
 
 
 def test_aids_come_from_the_config() -> None:

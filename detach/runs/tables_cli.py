@@ -217,10 +217,12 @@ def code_note(runs: Mapping[str, RunFolder]) -> str | None:
         counts[commit] = counts.get(commit, 0) + 1
     if not counts:
         return None
+    total = sum(counts.values())
+    cells = f"the sweep's {total} cell{'s' if total > 1 else ''} in the runs folder"
     if len(counts) == 1:
-        return f"Code: every cell trained at commit {next(iter(counts))}."
+        return f"Code: {cells}: trained at commit {next(iter(counts))}."
     listed = ", ".join(f"{c} ({n} cell{'s' if n > 1 else ''})" for c, n in sorted(counts.items(), key=lambda x: -x[1]))
-    return (f"Code: the cells were trained at {len(counts)} commits: {listed}; a cell's key digests its config, "
+    return (f"Code: {cells}: trained at {len(counts)} commits, {listed}; a cell's key digests its config, "
             f"not the code (each cell's provenance.json).")
 
 
