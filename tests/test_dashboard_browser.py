@@ -202,7 +202,7 @@ def test_dashboard_in_chromium(dashboard, tmp_path: Path) -> None:
             _tab(a, "Tables")
             expect(a.get_by_text("Pooled runs:").first).to_be_visible(timeout=WAIT_MS)
             expect(a.get_by_role("columnheader", name="n", exact=True).first).to_be_visible()
-            expect(a.get_by_text("40 (1 seed)").first).to_be_visible()
+            expect(a.get_by_text("40 (1 seed: s0)").first).to_be_visible()
             expect(a.get_by_text("paper: DETACH").first).to_be_visible()
             a.screenshot(path=str(tmp_path / "tables.png"))
             assert not errors_a and not errors_b, errors_a + errors_b

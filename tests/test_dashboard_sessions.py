@@ -230,7 +230,7 @@ def test_tables_show_n_and_which_runs_were_pooled(runs: Path) -> None:
         assert "paper: DETACH" in text and "white-space:nowrap" in text
         client.set("One row per run", True)
         client.wait_for(lambda: "↳ mlp lh1 s0" in client.text(), what="the per-run rows")
-        assert "text-align:left'>n</th>" in client.text() and "40 (1 seed)" in client.text()
+        assert "text-align:left'>n</th>" in client.text() and "40 (1 seed: s0)" in client.text()
     finally:
         client.close()
         server.stop()

@@ -53,7 +53,7 @@ def test_skills_table_markdown_layout() -> None:
     lines = md.strip().splitlines()
     assert lines[2] == "| Method | Follow | Carry | Climb | Sit | LH1 (mean) | LH1 (chain) | n |"
     assert lines[4].startswith("| TokenHSI | 1.00 [") and lines[5].startswith("| DETACH |")
-    assert lines[5].split(" | ")[-2].startswith("0.50 [") and lines[5].endswith("| 4 (1 seed) |")
+    assert lines[5].split(" | ")[-2].startswith("0.50 [") and lines[5].endswith("| 4 (1 seed: s0) |")
 
 
 def test_generalization_table_egr_uses_lh1_of_same_model() -> None:

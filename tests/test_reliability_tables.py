@@ -192,4 +192,4 @@ def test_a_sweep_table_reads_only_the_evaluations_the_sweep_asks_of_each_cell(
                      "--out", str(tmp_path / "t")]) == 0
     assert "1 evaluation(s) on a task the sweep does not evaluate their cell on left out" in capsys.readouterr().err
     csv = (tmp_path / "t" / "mini_dev.csv").read_text().splitlines()
-    assert csv[1].split(",")[1:8] == ["1.0", "1.0", "1.0", "1.0", "1.0", "1.0", "10 (1 seed)"], csv
+    assert csv[1].split(",")[1:8] == ["1.0", "1.0", "1.0", "1.0", "1.0", "1.0", "10 (1 seed: s0)"], csv

@@ -188,7 +188,7 @@ def test_more_seeds_train_only_the_cells_a_one_seed_sweep_lacks_and_their_table_
     assert "4 (2 seeds: s0 " in pooled and "/ s1 " in pooled  # two trials of each seed, each seed's rate
     assert cli.main(["table", str(sweep), "--preset", "tiny", "--runs", str(out), "--task", "follow",
                      "--out", str(tmp_path / "tables")]) == 0
-    assert "2 (1 seed)" in (tmp_path / "tables" / "one_stage_follow.csv").read_text()  # the preset's own seeds
+    assert "2 (1 seed: s0)" in (tmp_path / "tables" / "one_stage_follow.csv").read_text()  # the preset's own seeds
     capsys.readouterr()
     for bad, said in [("0,0", "expected distinct seeds, found 0,0"), ("1,x", "expected an integer, found 'x'"),
                       ("-1", "expected an integer in [0, 4294967295], found -1")]:

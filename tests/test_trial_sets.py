@@ -219,8 +219,8 @@ def test_the_dashboard_counts_a_run_evaluated_on_both_sets_once() -> None:
     test.trial_set = "test"
     skills = build_tables([("run", dev), ("run", test)])["skills"].table
     n_col = skills.header.index("n")
-    assert [str(r[n_col]) for r in skills.rows] == ["6 (1 seed)"]  # the test trials alone
-    assert build_tables([("run", dev)])["skills"].table.rows[0][n_col] == "4 (1 seed)"
+    assert [str(r[n_col]) for r in skills.rows] == ["6 (1 seed: s0)"]  # the test trials alone
+    assert build_tables([("run", dev)])["skills"].table.rows[0][n_col] == "4 (1 seed: s0)"
 
 
 def test_table_one_measures_zero_shot_climb_and_sit_where_every_trial_starts_at_them() -> None:

@@ -220,12 +220,15 @@ def pool(evals: Sequence[EvalResult], value: TrialValue) -> Cell:
 
 
 def _n(evals: Sequence[EvalResult]) -> str:
-    """Trials and seeds, and with several seeds each seed's LH mean: a recipe that works on
-    one seed only shows so in the row itself."""
-    seeds = len({e.seed for e in evals})
-    text = f"{sum(e.trials for e in evals)} ({seeds} seed{'s' if seeds != 1 else ''}"
+    """Trials and seeds, with one seed which one, and with several each seed's LH mean: a
+    recipe that works on one seed only shows so in the row itself, and a one-seed row beside
+    pooled ones names the seed it rests on."""
+    seeds = sorted({e.seed for e in evals})
+    text = f"{sum(e.trials for e in evals)} ({len(seeds)} seed{'s' if len(seeds) != 1 else ''}"
     per_seed = pool(evals, lh_mean_value).per_seed or {}
-    if len(per_seed) > 1:
+    if len(seeds) == 1:
+        text += f": s{seeds[0]}"
+    elif len(per_seed) > 1:
         text += ": " + " / ".join(f"s{s} {v:.2f}" for s, v in sorted(per_seed.items()))
     return text + ")"
 
