@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import json
 import re
+import shutil
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +24,7 @@ from detach.models.factory import build_actor_critic
 from detach.runfolder.names import AGENT_PARAMS_FILE, PROVENANCE_FILE
 from detach.runfolder.folder import RunFolder, find_runs
 from detach.runfolder.mcap_reader import read_metrics
+from detach.runs.provenance import git_state
 from detach.train.checkpoints import load_module_weights, read_checkpoint, write_checkpoint
 from detach.train.run_config import complete_run_config
 from detach.train.setup import default_action_std
@@ -193,11 +196,6 @@ def test_export_through_the_cli(tmp_path: Path, capsys: pytest.CaptureFixture[st
 def test_a_symlinked_assets_or_runs_folder_does_not_make_the_provenance_dirty(tmp_path: Path) -> None:
     """A work tree whose assets/ and runs/ are symlinks (a second checkout sharing the built
     assets) is as clean as one holding them: the .gitignore patterns match links too."""
-    import shutil
-    import subprocess
-
-    from detach.runs.provenance import git_state
-
     if shutil.which("git") is None:
         pytest.skip("git is not installed")
     repo = tmp_path / "checkout"

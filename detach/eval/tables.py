@@ -225,10 +225,10 @@ def _n(evals: Sequence[EvalResult]) -> str:
     pooled ones names the seed it rests on."""
     seeds = sorted({e.seed for e in evals})
     text = f"{sum(e.trials for e in evals)} ({len(seeds)} seed{'s' if len(seeds) != 1 else ''}"
-    per_seed = pool(evals, lh_mean_value).per_seed or {}
     if len(seeds) == 1:
-        text += f": s{seeds[0]}"
-    elif len(per_seed) > 1:
+        return text + f": s{seeds[0]})"
+    per_seed = pool(evals, lh_mean_value).per_seed or {}
+    if len(per_seed) > 1:
         text += ": " + " / ".join(f"s{s} {v:.2f}" for s, v in sorted(per_seed.items()))
     return text + ")"
 

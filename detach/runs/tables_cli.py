@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import os
 import sys
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Collection, Mapping, Sequence
@@ -35,6 +36,7 @@ from detach.runfolder.eval_result import EvalResult
 from detach.runfolder.names import trial_set_of_file
 from detach.runfolder.atomic import atomic_write_text
 from detach.runfolder.folder import RunFolder, find_runs, read_eval
+from detach.runs.provenance import last_git
 
 Report = Callable[[str], None]
 
@@ -206,22 +208,16 @@ def code_note(runs: Mapping[str, RunFolder]) -> str | None:
     cell's key digests its config, not the code, so one table can pool cells that the same
     key trained under different code (a reward or clip change between sessions); the note
     makes that visible. None when no cell's commit is known."""
-    from detach.runs.provenance import last_git
-
-    counts: dict[str, int] = {}
-    for run in runs.values():
-        git = last_git(run) or {}
-        if not git.get("commit"):
-            continue
-        commit = str(git["commit"])[:7] + (" with uncommitted changes" if git.get("diff") else "")
-        counts[commit] = counts.get(commit, 0) + 1
+    gits = [git for git in map(last_git, runs.values()) if git and git.get("commit")]
+    counts = Counter(str(git["commit"])[:7] + (" with uncommitted changes" if git.get("diff") else "")
+                     for git in gits)
     if not counts:
         return None
     total = sum(counts.values())
     cells = f"the sweep's {total} cell{'s' if total > 1 else ''} in the runs folder"
     if len(counts) == 1:
         return f"Code: {cells}: trained at commit {next(iter(counts))}."
-    listed = ", ".join(f"{c} ({n} cell{'s' if n > 1 else ''})" for c, n in sorted(counts.items(), key=lambda x: -x[1]))
+    listed = ", ".join(f"{c} ({n} cell{'s' if n > 1 else ''})" for c, n in counts.most_common())
     return (f"Code: {cells}: trained at {len(counts)} commits, {listed}; a cell's key digests its config, "
             f"not the code (each cell's provenance.json).")
 
