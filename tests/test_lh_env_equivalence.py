@@ -137,8 +137,8 @@ def mismatches(summary: dict[str, np.ndarray], reference: dict[str, np.ndarray])
         return ["an integer or boolean value differs from the reference"]
     got, want = summary["floats"], reference["floats"]
     tolerance = RTOL * np.nan_to_num(np.maximum(want[:, 1], 1e-9), posinf=0.0)
-    apart = ~np.isclose(got, want, rtol=0.0, atol=0.0, equal_nan=True) & ~(np.abs(got - want) <= tolerance[:, None])
-    moved = np.flatnonzero(apart.any(axis=1))  # a NaN matches only a NaN, an infinity only itself
+    within = np.isclose(got, want, rtol=0.0, atol=tolerance[:, None], equal_nan=True)
+    moved = np.flatnonzero(~within.all(axis=1))  # a NaN matches only a NaN, an infinity only itself
     float_paths = [s for s in signature if " float(" in s]
     return [f"{float_paths[i]}: sum, abs sum {got[i].tolist()} vs {want[i].tolist()}" for i in moved]
 
